@@ -1,0 +1,240 @@
+"""Textures for the simulated planes: built-in photographs, procedural patterns, user images.
+
+Intensity convention (ESIM's planar renderer): an 8-bit image value ``v`` is taken as linear
+intensity ``v / 255``; ``gamma`` can decode a display gamma first. Every texture is then
+mapped affinely to a random ``[low, high]`` range, so sequences see varied contrast and
+brightness and never exact black (where ``log(eps + I)`` would be dominated by ``eps``).
+"""
+
+from __future__ import annotations
+
+import logging
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".tga", ".webp")
+ARCHIVE_SUFFIXES = (".zip", ".pk3")
+#: Photographs and material textures that ship inside scikit-image (no download).
+BUILTIN_FILES = ("astronaut.png", "brick.png", "camera.png", "chelsea.png", "coffee.png",
+                 "coins.png", "grass.png", "gravel.png", "hubble_deep_field.jpg", "ihc.png",
+                 "moon.png", "page.png", "retina.jpg", "rocket.jpg", "text.png",
+                 "motorcycle_left.png", "cell.png", "color.png")
+PROCEDURAL = ("noise", "shapes", "grating", "checker")
+
+
+@dataclass(frozen=True)
+class TextureConfig:
+    """Where textures come from and how they are varied.
+
+    Attributes:
+        source: ``builtin``, or a folder (searched recursively) or a zip/pk3 of images.
+        procedural_fraction: share of sequences using a procedural pattern instead.
+        crop_fraction: (min, max) side of the random crop relative to the image.
+        low_range, high_range: ranges of the darkest / brightest linear intensity.
+        gamma: decode ``(v/255) ** gamma`` (1.0 = ESIM's convention, 2.2 = sRGB-like).
+        max_texels: cap on the texture's longest side.
+    """
+
+    source: str = "builtin"
+    procedural_fraction: float = 0.25
+    crop_fraction: tuple[float, float] = (0.6, 1.0)
+    low_range: tuple[float, float] = (0.02, 0.2)
+    high_range: tuple[float, float] = (0.6, 1.0)
+    gamma: float = 1.0
+    max_texels: int = 4096
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.procedural_fraction <= 1:
+            raise ValueError("procedural_fraction must be in [0, 1]")
+        lo, hi = self.crop_fraction
+        if not 0 < lo <= hi <= 1:
+            raise ValueError("crop_fraction must satisfy 0 < min <= max <= 1")
+        if not 0 < self.low_range[0] <= self.low_range[1] < self.high_range[0] \
+                <= self.high_range[1]:
+            raise ValueError("need 0 < low_range <= ... < high_range")
+        if self.gamma <= 0 or self.max_texels < 16:
+            raise ValueError("gamma must be > 0 and max_texels >= 16")
+
+
+def _decode(data: bytes) -> np.ndarray | None:
+    """Gray image in [0, 1] (float32) from encoded bytes, or None if unreadable."""
+    arr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if arr is None or arr.size == 0 or arr.ndim not in (2, 3):
+        return None
+    if arr.ndim == 3:
+        if arr.shape[2] == 4:
+            arr = arr[..., :3]
+        arr = cv2.cvtColor(arr, cv2.COLOR_BGR2GRAY) if arr.shape[2] == 3 else arr[..., 0]
+    scale = {np.dtype(np.uint8): 255.0, np.dtype(np.uint16): 65535.0}.get(arr.dtype)
+    if scale is None:
+        arr = arr.astype(np.float32)
+        span = float(arr.max() - arr.min())
+        return None if span <= 0 else (arr - arr.min()) / span
+    return arr.astype(np.float32) / scale
+
+
+class ImageLibrary:
+    """A list of image files (in folders or archives) read on demand.
+
+    Unreadable entries are skipped with a warning and counted in ``skipped``.
+    """
+
+    def __init__(self, source: str | Path) -> None:
+        self.source = str(source)
+        self.skipped = 0
+        self._entries: list[tuple[str, str]] = []  # (container, member) pairs
+        if self.source == "builtin":
+            import skimage.data
+
+            folder = Path(skimage.data.__file__).parent
+            self._entries = [(str(folder / f), "") for f in BUILTIN_FILES
+                             if (folder / f).is_file()]
+        else:
+            self._scan(Path(self.source))
+        if not self._entries:
+            raise FileNotFoundError(f"{self.source}: no readable images found "
+                                    f"({', '.join(IMAGE_SUFFIXES + ARCHIVE_SUFFIXES)})")
+
+    def _scan(self, path: Path) -> None:
+        if not path.exists():
+            raise FileNotFoundError(f"{path}: texture path does not exist")
+        files = [path] if path.is_file() else sorted(p for p in path.rglob("*") if p.is_file())
+        for f in files:
+            suffix = f.suffix.lower()
+            if suffix in IMAGE_SUFFIXES:
+                self._entries.append((str(f), ""))
+            elif suffix in ARCHIVE_SUFFIXES:
+                try:
+                    with zipfile.ZipFile(f) as zf:
+                        self._entries += [(str(f), n) for n in sorted(zf.namelist())
+                                          if n.lower().endswith(IMAGE_SUFFIXES)]
+                except (zipfile.BadZipFile, OSError) as exc:
+                    self.skipped += 1
+                    log.warning("%s: skipped, not a readable zip archive (%s)", f, exc)
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def name(self, i: int) -> str:
+        container, member = self._entries[i]
+        if self.source == "builtin":
+            return f"builtin:{Path(container).name}"
+        return f"{container}:{member}" if member else container
+
+    def read(self, i: int) -> np.ndarray | None:
+        """float32 gray image in [0, 1], or None (warned and counted) if unreadable."""
+        container, member = self._entries[i]
+        try:
+            if member:
+                with zipfile.ZipFile(container) as zf:
+                    data = zf.read(member)
+            else:
+                data = Path(container).read_bytes()
+            img = _decode(data)
+            problem = "not a decodable image" if img is None else "smaller than 8 pixels"
+        except (OSError, KeyError, zipfile.BadZipFile) as exc:
+            img, problem = None, str(exc)
+        if img is None or min(img.shape) < 8:
+            self.skipped += 1
+            log.warning("%s: skipped texture (%s)", self.name(i), problem)
+            return None
+        return img
+
+
+def procedural(kind: str, size: int, rng: np.random.Generator) -> np.ndarray:
+    """float32[size, size] pattern in [0, 1]: smooth noise, shapes, gratings or checkers."""
+    yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
+    if kind == "noise":
+        img = np.zeros((size, size), np.float32)
+        for octave in range(5):
+            sigma = size / 8 / 2**octave
+            layer = cv2.GaussianBlur(rng.random((size, size)).astype(np.float32), (0, 0), sigma)
+            layer = (layer - layer.mean()) / (layer.std() + 1e-9)
+            img += layer * 0.6**octave
+    elif kind == "shapes":
+        img = np.full((size, size), rng.uniform(0, 1), np.float32)
+        for _ in range(int(rng.integers(15, 60))):
+            c = (int(rng.integers(0, size)), int(rng.integers(0, size)))
+            r = int(rng.integers(size // 40, size // 6))
+            color = float(rng.uniform(0, 1))
+            if rng.random() < 0.5:
+                cv2.ellipse(img, c, (r, int(r * rng.uniform(0.3, 1))), float(rng.uniform(0, 180)),
+                            0, 360, color, -1, cv2.LINE_AA)
+            else:
+                pts = np.array(c) + rng.integers(-r, r + 1, (int(rng.integers(3, 7)), 2))
+                cv2.fillPoly(img, [pts.astype(np.int32)], color, cv2.LINE_AA)
+    elif kind in ("grating", "checker"):
+        theta = rng.uniform(0, np.pi)
+        period = size / rng.uniform(6, 30)
+        u = (xx * np.cos(theta) + yy * np.sin(theta)) / period
+        if kind == "grating":
+            img = 0.5 + 0.5 * np.sin(2 * np.pi * u)
+        else:
+            v = (-xx * np.sin(theta) + yy * np.cos(theta)) / period
+            img = ((np.floor(u) + np.floor(v)) % 2).astype(np.float32)
+            img = cv2.GaussianBlur(img, (0, 0), 0.7)
+    else:
+        raise ValueError(f"unknown procedural texture {kind!r}; choose from {PROCEDURAL}")
+    img = img.astype(np.float32)
+    return (img - img.min()) / max(float(img.max() - img.min()), 1e-9)
+
+
+class TextureSampler:
+    """Draws a varied texture of a requested shape for each sequence."""
+
+    def __init__(self, config: TextureConfig) -> None:
+        self.config = config
+        self.library = ImageLibrary(config.source)
+
+    def sample(self, rng: np.random.Generator, aspect: float, width: int) -> tuple[np.ndarray,
+                                                                                   str]:
+        """(float32[h, w] linear texture with ``w/h ~= aspect``, its name).
+
+        Args:
+            aspect: width / height of the plane.
+            width: texels across (capped at ``max_texels`` on the longest side).
+        """
+        cfg = self.config
+        scale = min(1.0, cfg.max_texels / max(width, width / aspect))
+        w = max(16, int(round(width * scale)))
+        h = max(16, int(round(w / aspect)))
+        if rng.random() < cfg.procedural_fraction:
+            kind = PROCEDURAL[int(rng.integers(len(PROCEDURAL)))]
+            base, name = procedural(kind, 1024, rng), f"procedural:{kind}"
+        else:
+            base, name = self._photo(rng)
+        img = self._crop(base, aspect, rng)
+        lo, hi = np.percentile(img, (1, 99))
+        img = np.clip((img - lo) / max(float(hi - lo), 1e-6), 0.0, 1.0)
+        interp = cv2.INTER_AREA if w < img.shape[1] else cv2.INTER_CUBIC
+        img = np.clip(cv2.resize(img, (w, h), interpolation=interp), 0.0, 1.0)
+        img = img ** cfg.gamma if cfg.gamma != 1.0 else img
+        low, high = rng.uniform(*cfg.low_range), rng.uniform(*cfg.high_range)
+        return (low + (high - low) * img).astype(np.float32), name
+
+    def _photo(self, rng: np.random.Generator) -> tuple[np.ndarray, str]:
+        for _ in range(20):
+            i = int(rng.integers(len(self.library)))
+            img = self.library.read(i)
+            if img is not None:
+                return img, self.library.name(i)
+        raise ValueError(f"{self.config.source}: 20 consecutive textures were unreadable")
+
+    def _crop(self, img: np.ndarray, aspect: float, rng: np.random.Generator) -> np.ndarray:
+        img = np.rot90(img, int(rng.integers(4)))
+        if rng.random() < 0.5:
+            img = img[:, ::-1]
+        ih, iw = img.shape
+        frac = rng.uniform(*self.config.crop_fraction)
+        w = min(iw, ih * aspect) * frac
+        h = w / aspect
+        x0 = rng.uniform(0, iw - w)
+        y0 = rng.uniform(0, ih - h)
+        crop = img[int(y0):int(y0 + h) + 1, int(x0):int(x0 + w) + 1]
+        return np.ascontiguousarray(crop, np.float32)

@@ -1,0 +1,193 @@
+"""Typed configuration: YAML or plain mappings into nested frozen dataclasses.
+
+Every stage of e2sr describes its options as frozen dataclasses with defaults. This module
+turns a mapping (usually ``yaml.safe_load`` output) into such a dataclass, recursing into
+nested dataclasses and tuples, rejecting unknown keys and wrong types with a message that
+names the source file and the dotted key. ``--set a.b=c`` overrides go through
+:func:`apply_overrides` so they get the same checks.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import types
+import typing
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+
+T = TypeVar("T")
+
+
+class ConfigError(ValueError):
+    """A configuration value or key is invalid; the message names the source and key."""
+
+
+def _fail(source: str, key: str, problem: str) -> typing.NoReturn:
+    where = f"{source}: " if source else ""
+    raise ConfigError(f"{where}{key or '<root>'}: {problem}")
+
+
+def _convert(tp: Any, value: Any, source: str, key: str) -> Any:
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if tp is Any:
+        return value
+    if dataclasses.is_dataclass(tp):
+        if isinstance(value, tp):
+            return value
+        if not isinstance(value, Mapping):
+            _fail(source, key, f"expected a mapping for {tp.__name__}, got {value!r}")
+        return from_mapping(tp, value, source=source, prefix=key)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        errors = []
+        for arg in args:
+            if arg is type(None):
+                continue
+            try:
+                return _convert(arg, value, source, key)
+            except ConfigError as exc:
+                errors.append(str(exc))
+        _fail(source, key, f"{value!r} matches none of {args}")
+    if origin is typing.Literal:
+        if value not in args:
+            _fail(source, key, f"{value!r} is not one of {list(args)}")
+        return value
+    if origin in (tuple, list):
+        if isinstance(value, (str, bytes)) or not isinstance(value, (list, tuple)):
+            _fail(source, key, f"expected a list, got {value!r}")
+        if origin is tuple and args and args[-1] is not Ellipsis:
+            if len(value) != len(args):
+                _fail(source, key, f"expected {len(args)} items, got {len(value)}")
+            return tuple(_convert(a, v, source, f"{key}[{i}]")
+                         for i, (a, v) in enumerate(zip(args, value)))
+        item = args[0] if args else Any
+        items = [_convert(item, v, source, f"{key}[{i}]") for i, v in enumerate(value)]
+        return tuple(items) if origin is tuple else items
+    if origin in (dict, Mapping):
+        if not isinstance(value, Mapping):
+            _fail(source, key, f"expected a mapping, got {value!r}")
+        kt, vt = args if args else (Any, Any)
+        return {_convert(kt, k, source, key): _convert(vt, v, source, f"{key}.{k}")
+                for k, v in value.items()}
+    if tp is bool:
+        if not isinstance(value, bool):
+            _fail(source, key, f"expected true/false, got {value!r}")
+        return value
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            if isinstance(value, float) and value.is_integer():
+                return int(value)
+            _fail(source, key, f"expected an integer, got {value!r}")
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            _fail(source, key, f"expected a number, got {value!r}")
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            _fail(source, key, f"expected a string, got {value!r}")
+        return value
+    if isinstance(tp, type) and not isinstance(value, tp):
+        _fail(source, key, f"expected {tp.__name__}, got {value!r}")
+    return value
+
+
+def from_mapping(cls: type[T], data: Mapping[str, Any] | None, *, source: str = "",
+                 prefix: str = "") -> T:
+    """Build dataclass ``cls`` from ``data``; missing keys take the dataclass defaults.
+
+    Raises:
+        ConfigError: unknown key, wrong type, or a value rejected by ``__post_init__``;
+            the message names ``source`` (usually the YAML path) and the dotted key.
+    """
+    data = {} if data is None else data
+    if not isinstance(data, Mapping):
+        _fail(source, prefix, f"expected a mapping, got {data!r}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls) if f.init}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        _fail(source, f"{prefix}.{unknown[0]}" if prefix else str(unknown[0]),
+              f"unknown key (valid keys: {', '.join(sorted(names))})")
+    kwargs = {}
+    for name, value in data.items():
+        key = f"{prefix}.{name}" if prefix else name
+        kwargs[name] = _convert(hints[name], value, source, key)
+    try:
+        return cls(**kwargs)
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        _fail(source, prefix, str(exc))
+
+
+def to_mapping(obj: Any) -> Any:
+    """Plain-Python (YAML-safe) form of a config dataclass: dicts, lists and scalars."""
+    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        return {f.name: to_mapping(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, (list, tuple)):
+        return [to_mapping(v) for v in obj]
+    if isinstance(obj, Mapping):
+        return {k: to_mapping(v) for k, v in obj.items()}
+    return obj
+
+
+def to_yaml(obj: Any) -> str:
+    """YAML text of a config dataclass; ``load_yaml_text(type(obj), to_yaml(obj)) == obj``."""
+    return yaml.safe_dump(to_mapping(obj), sort_keys=False)
+
+
+def load_yaml_text(cls: type[T], text: str, *, source: str = "<text>") -> T:
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{source}: not valid YAML: {exc}") from exc
+    return from_mapping(cls, data, source=source)
+
+
+def load_yaml(cls: type[T], path: str | Path, overrides: list[str] | None = None) -> T:
+    """Load ``path`` into ``cls``, then apply ``key=value`` overrides (YAML-typed values)."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: config file not found")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+    data = apply_overrides(data, overrides or [], source=str(path))
+    return from_mapping(cls, data, source=str(path))
+
+
+def apply_overrides(data: Mapping[str, Any], overrides: list[str], *,
+                    source: str = "--set") -> dict[str, Any]:
+    """Return a copy of ``data`` with each ``a.b.c=value`` applied (value parsed as YAML)."""
+    out = _deep_copy(data)
+    for item in overrides:
+        if "=" not in item:
+            raise ConfigError(f"{source}: override {item!r} is not of the form key=value")
+        dotted, raw = item.split("=", 1)
+        keys = dotted.strip().split(".")
+        if not all(keys):
+            raise ConfigError(f"{source}: override {item!r} has an empty key")
+        node = out
+        for k in keys[:-1]:
+            nxt = node.get(k)
+            if nxt is None:
+                nxt = node[k] = {}
+            elif not isinstance(nxt, dict):
+                raise ConfigError(f"{source}: override {item!r}: {k} is not a section")
+            node = nxt
+        try:
+            node[keys[-1]] = yaml.safe_load(raw)
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"{source}: override {item!r}: bad value: {exc}") from exc
+    return out
+
+
+def _deep_copy(data: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: _deep_copy(v) if isinstance(v, Mapping) else v for k, v in data.items()}

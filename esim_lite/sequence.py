@@ -1,0 +1,174 @@
+"""Simulate one sequence: render along the trajectory, emit events, render frames."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from esim_lite.antialias import prefilter_sigma, texels_per_sample
+from esim_lite.camera import CameraRig
+from esim_lite.config import SimulationConfig
+from esim_lite.events import Events
+from esim_lite.frames import Frames
+from esim_lite.noise import NoiseModel
+from esim_lite.pose import Pose
+from esim_lite.renderer import RenderConfig, Renderer, make_renderer, supersample_for
+from esim_lite.sampling import AdaptiveSampler
+from esim_lite.scene import PlanarScene
+from esim_lite.simulator import EventSimulator, log_intensity
+from esim_lite.thresholds import ContrastThresholds
+from esim_lite.trajectory import BSplineTrajectory
+
+
+@dataclass(frozen=True, eq=False)
+class FrameSample:
+    """All cameras rendered at one frame time: ``images[name]`` is float32[H, W]."""
+
+    t_ns: int
+    pose: Pose
+    images: dict[str, np.ndarray]
+
+
+@dataclass(frozen=True, eq=False)
+class SimulationChunk:
+    """A piece of a sequence in time order.
+
+    Attributes:
+        events: events since the previous chunk.
+        frames: frames whose time was passed since the previous chunk.
+        sample_poses: float64[S, 8] ``t_s, tx, ty, tz, qx, qy, qz, qw`` at every render
+            sample (the adaptive time grid) in this chunk.
+    """
+
+    events: Events
+    frames: list[FrameSample]
+    sample_poses: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
+class SimulatedSequence:
+    """A whole simulated sequence (see :func:`simulate_sequence`)."""
+
+    events: Events
+    frames: dict[str, Frames]
+    frame_poses: np.ndarray
+    sample_poses: np.ndarray
+    rig: CameraRig
+    thresholds: ContrastThresholds
+
+
+def frame_times_ns(duration_s: float, frame_rate_hz: float) -> np.ndarray:
+    """int64 frame timestamps ``k / rate`` for ``k = 0 ..`` up to the duration."""
+    n = int(np.floor(duration_s * frame_rate_hz + 1e-9)) + 1
+    return np.round(np.arange(n) * (1e9 / frame_rate_hz)).astype(np.int64)
+
+
+def _pose_row(t_ns: int, pose: Pose) -> np.ndarray:
+    return np.concatenate([[t_ns * 1e-9], pose.to_tq()])
+
+
+def antialias_sigmas(scene: PlanarScene, trajectory: BSplineTrajectory, rig: CameraRig,
+                     config: RenderConfig) -> dict[str, float]:
+    """Per-camera texture prefilter (texels) for the worst view along the trajectory."""
+    poses = [trajectory.pose(t) for t in trajectory.sample_times(0.01)]
+    return {name: prefilter_sigma(texels_per_sample(scene, cam, supersample_for(name, config),
+                                                    poses))
+            for name, cam in rig.cameras().items()}
+
+
+def simulate(scene: PlanarScene, trajectory: BSplineTrajectory, thresholds: ContrastThresholds,
+             config: SimulationConfig, rng: np.random.Generator,
+             renderer: Renderer | None = None, chunk_events: int = 1_000_000,
+             ) -> Iterator[SimulationChunk]:
+    """Stream a sequence as chunks of about ``chunk_events`` events (bounded memory).
+
+    Args:
+        scene, trajectory: what is seen and how the rig moves; the trajectory must last at
+            least ``config.duration_s``.
+        thresholds: the event camera's thresholds (see :func:`sample_thresholds`).
+        rng: drives the noise model only; everything else is already drawn.
+        renderer: a renderer for ``config.camera.rig().cameras()``; built from
+            ``config.render`` (and closed at the end) when None.
+    """
+    rig = config.camera.rig()
+    if trajectory.duration_s + 1e-9 < config.duration_s:
+        raise ValueError(f"trajectory lasts {trajectory.duration_s}s, the sequence "
+                         f"{config.duration_s}s")
+    own_renderer = renderer is None
+    if own_renderer:
+        sigmas = antialias_sigmas(scene, trajectory, rig, config.render)
+        renderer = make_renderer(scene, rig.cameras(), config.render, sigmas)
+    try:
+        yield from _run(renderer, trajectory, thresholds, config, rig, rng, chunk_events)
+    finally:
+        if own_renderer:
+            renderer.close()
+
+
+def _run(renderer: Renderer, trajectory: BSplineTrajectory, thresholds: ContrastThresholds,
+         config: SimulationConfig, rig: CameraRig, rng: np.random.Generator,
+         chunk_events: int) -> Iterator[SimulationChunk]:
+    ev_cfg = config.events
+    noise = NoiseModel(ev_cfg.noise, rig.event.hw, rng) if ev_cfg.noise.enabled else None
+    t_end = int(round(config.duration_s * 1e9))
+    frame_ts = frame_times_ns(config.duration_s, config.frame_rate_hz)
+    names = list(renderer.cameras)
+
+    t = 0
+    pose, twist = trajectory.pose_and_twist(0.0)
+    image = renderer.render("lr", pose)
+    sim = EventSimulator(image, t, thresholds, log_eps=ev_cfg.log_eps,
+                         refractory_ns=ev_cfg.refractory_ns, noise=noise)
+    sampler = AdaptiveSampler(config.sampling, rig.event, thresholds.min_threshold)
+    log_img = log_intensity(image, ev_cfg.log_eps)
+    events, frames, poses, n_events, next_frame = [], [], [_pose_row(t, pose)], 0, 0
+
+    while True:
+        while next_frame < len(frame_ts) and frame_ts[next_frame] <= t:
+            ft = int(frame_ts[next_frame])
+            fpose = pose if ft == t else trajectory.pose(ft * 1e-9)
+            frames.append(FrameSample(ft, fpose, {n: renderer.render(n, fpose) for n in names}))
+            next_frame += 1
+        if t >= t_end:
+            break
+        step_s = sampler.propose(log_img, pose, twist)
+        while True:
+            t_new = min(t + max(1, int(round(step_s * 1e9))), t_end)
+            new_pose, new_twist = trajectory.pose_and_twist(t_new * 1e-9)
+            new_log = log_intensity(renderer.render("lr", new_pose), ev_cfg.log_eps)
+            change = float(np.abs(new_log - log_img).max())
+            step_s = sampler.review(change, (t_new - t) * 1e-9)
+            if step_s is None:
+                break
+        t, pose, twist, log_img = t_new, new_pose, new_twist, new_log
+        batch = sim.step_log(log_img, t)
+        events.append(batch)
+        poses.append(_pose_row(t, pose))
+        n_events += len(batch)
+        if n_events >= chunk_events:
+            yield SimulationChunk(Events.concatenate(events, rig.event.hw), frames,
+                                  np.array(poses))
+            events, frames, poses, n_events = [], [], [], 0
+    yield SimulationChunk(Events.concatenate(events, rig.event.hw), frames,
+                          np.array(poses).reshape(-1, 8))
+
+
+def simulate_sequence(scene: PlanarScene, trajectory: BSplineTrajectory,
+                      thresholds: ContrastThresholds, config: SimulationConfig,
+                      rng: np.random.Generator, renderer: Renderer | None = None
+                      ) -> SimulatedSequence:
+    """Run :func:`simulate` to the end and gather everything in memory."""
+    chunks = list(simulate(scene, trajectory, thresholds, config, rng, renderer))
+    rig = config.camera.rig()
+    samples = [f for c in chunks for f in c.frames]
+    names = list(samples[0].images)
+    t_ns = np.array([f.t_ns for f in samples], np.int64)
+    frames = {n: Frames(np.stack([f.images[n] for f in samples]), t_ns) for n in names}
+    return SimulatedSequence(
+        events=Events.concatenate([c.events for c in chunks], rig.event.hw),
+        frames=frames,
+        frame_poses=np.stack([_pose_row(f.t_ns, f.pose) for f in samples]),
+        sample_poses=np.concatenate([c.sample_poses for c in chunks]),
+        rig=rig, thresholds=thresholds)

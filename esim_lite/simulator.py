@@ -1,0 +1,121 @@
+"""The event camera: turns a stream of rendered intensity samples into events."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+import numpy as np
+
+from esim_lite.event_kernel import NEVER, TIE_TOL, esim_step
+from esim_lite.event_reference import numpy_step, python_step
+from esim_lite.events import Events
+from esim_lite.noise import NoiseConfig, NoiseModel
+from esim_lite.thresholds import ContrastThresholds, ThresholdConfig
+
+KernelName = Literal["numba", "numpy", "python"]
+
+
+@dataclass(frozen=True)
+class EventConfig:
+    """The event camera model.
+
+    Attributes:
+        log_eps: events compare ``log(log_eps + I)``; keeps black pixels finite.
+        thresholds: ranges of the per-sequence contrast thresholds and per-pixel mismatch.
+        refractory_ns: a pixel's events closer than this to its previous one are dropped.
+        noise: shot noise, hot pixels and leak (all off by default).
+    """
+
+    log_eps: float = 1e-3
+    thresholds: ThresholdConfig = field(default_factory=ThresholdConfig)
+    refractory_ns: int = 0
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+
+    def __post_init__(self) -> None:
+        if self.log_eps <= 0:
+            raise ValueError("log_eps must be > 0")
+        if self.refractory_ns < 0:
+            raise ValueError("refractory_ns must be >= 0")
+
+
+class _NumbaKernel:
+    """Adapts :func:`esim_step` to the reference signature, reusing its output buffers."""
+
+    def __init__(self) -> None:
+        self.bufs = (np.empty(4096, np.int16), np.empty(4096, np.int16),
+                     np.empty(4096, np.int64), np.empty(4096, np.int8))
+
+    def __call__(self, l0, l1, ref, last_t, c_pos, c_neg, t0, t1, refractory_ns, tol):
+        n, *bufs = esim_step(l0, l1, ref, last_t, c_pos, c_neg, np.int64(t0), np.int64(t1),
+                             np.int64(refractory_ns), tol, *self.bufs)
+        self.bufs = tuple(bufs)
+        return tuple(b[:n].copy() for b in bufs)
+
+
+def log_intensity(intensity: np.ndarray, log_eps: float) -> np.ndarray:
+    """float32 ``log(log_eps + I)`` of a linear intensity image."""
+    return np.log(np.asarray(intensity, np.float32) + np.float32(log_eps))
+
+
+class EventSimulator:
+    """Per-pixel ESIM state for one sensor and one sequence.
+
+    Args:
+        first_intensity: float32[H, W] linear intensity at ``t0_ns``; sets the references.
+        t0_ns: time of the first sample.
+        thresholds: the sensor's (possibly mismatched) contrast thresholds.
+        log_eps, refractory_ns: see :class:`EventConfig`.
+        noise: a :class:`NoiseModel`, or None for a noise-free sensor.
+        kernel: ``numba`` (fast), or the ``numpy``/``python`` reference implementations.
+    """
+
+    def __init__(self, first_intensity: np.ndarray, t0_ns: int, thresholds: ContrastThresholds,
+                 *, log_eps: float = 1e-3, refractory_ns: int = 0,
+                 noise: NoiseModel | None = None, kernel: KernelName = "numba") -> None:
+        self.hw = tuple(first_intensity.shape)
+        if thresholds.pos_map.shape != self.hw:
+            raise ValueError(f"threshold maps {thresholds.pos_map.shape} do not match the "
+                             f"sensor {self.hw}")
+        self.thresholds = thresholds
+        self.log_eps = float(log_eps)
+        self.refractory_ns = int(refractory_ns)
+        self.noise = noise
+        self._kernel = {"numba": _NumbaKernel, "numpy": lambda: numpy_step,
+                        "python": lambda: python_step}[kernel]()
+        self._c_pos = np.ascontiguousarray(thresholds.pos_map, np.float64)
+        self._c_neg = np.ascontiguousarray(thresholds.neg_map, np.float64)
+        self.t0_ns = int(t0_ns)
+        self.t_ns = int(t0_ns)
+        self.log_prev = self._effective_log(log_intensity(first_intensity, self.log_eps),
+                                            self.t_ns)
+        self.ref = self.log_prev.astype(np.float64)
+        self.last_t = np.full(self.hw, NEVER, np.int64)
+
+    def _effective_log(self, log_img: np.ndarray, t_ns: int) -> np.ndarray:
+        drift = None if self.noise is None else self.noise.leak_offset(
+            self._c_pos, (t_ns - self.t0_ns) * 1e-9)
+        return log_img if drift is None else log_img + drift
+
+    def step(self, intensity: np.ndarray, t_ns: int) -> Events:
+        """Events between the previous sample and this linear intensity sample at ``t_ns``."""
+        return self.step_log(log_intensity(intensity, self.log_eps), t_ns)
+
+    def step_log(self, log_img: np.ndarray, t_ns: int) -> Events:
+        """Like :meth:`step` for a log-intensity image (float32[H, W]); sorted by time."""
+        t_ns = int(t_ns)
+        if t_ns <= self.t_ns:
+            raise ValueError(f"samples must move forward in time: {t_ns} <= {self.t_ns}")
+        if log_img.shape != self.hw:
+            raise ValueError(f"sample shape {log_img.shape} does not match sensor {self.hw}")
+        cur = self._effective_log(np.ascontiguousarray(log_img, np.float32), t_ns)
+        x, y, t, p = self._kernel(self.log_prev, cur, self.ref, self.last_t, self._c_pos,
+                                  self._c_neg, self.t_ns, t_ns, self.refractory_ns, TIE_TOL)
+        if self.noise is not None:
+            nx, ny, nt, np_ = self.noise.events(self.t_ns, t_ns)
+            if len(nt):
+                x, y = np.concatenate([x, nx]), np.concatenate([y, ny])
+                t, p = np.concatenate([t, nt]), np.concatenate([p, np_])
+        order = np.lexsort((x, y, t))
+        self.log_prev, self.t_ns = cur, t_ns
+        return Events(x[order], y[order], t[order], p[order], self.hw)

@@ -1,0 +1,50 @@
+"""YAML configs into frozen dataclasses: errors name the file and the key."""
+
+from __future__ import annotations
+
+import pytest
+
+from esim_lite.config import SimulationConfig
+from esim_lite.dataconf import ConfigError, apply_overrides, load_yaml, load_yaml_text, to_yaml
+
+
+def test_round_trip_through_yaml():
+    cfg = SimulationConfig()
+    assert load_yaml_text(SimulationConfig, to_yaml(cfg)) == cfg
+
+
+def test_nested_values_and_overrides(tmp_path):
+    path = tmp_path / "sim.yaml"
+    path.write_text("duration_s: 2\ncamera:\n  scales: [2, 4]\nevents:\n  refractory_ns: 1000\n")
+    cfg = load_yaml(SimulationConfig, path, ["render.backend=homography",
+                                             "events.thresholds.pos_range=[0.2, 0.4]"])
+    assert cfg.duration_s == 2.0 and cfg.camera.scales == (2, 4)
+    assert cfg.events.refractory_ns == 1000
+    assert cfg.render.backend == "homography"
+    assert cfg.events.thresholds.pos_range == (0.2, 0.4)
+
+
+@pytest.mark.parametrize("text, key, problem", [
+    ("durration_s: 1\n", "durration_s", "unknown key"),
+    ("camera:\n  widht: 3\n", "camera.widht", "unknown key"),
+    ("render:\n  backend: vulkan\n", "render.backend", "not one of"),
+    ("camera:\n  width: many\n", "camera.width", "expected an integer"),
+    ("events:\n  thresholds:\n    pos_range: [0.5, 0.1]\n", "events.thresholds",
+     "min <= max"),
+    ("sampling:\n  adaptive: 1\n", "sampling.adaptive", "true/false"),
+])
+def test_bad_configs_name_the_file_and_key(tmp_path, text, key, problem):
+    path = tmp_path / "bad.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as err:
+        load_yaml(SimulationConfig, path)
+    assert str(path) in str(err.value) and key in str(err.value) and problem in str(err.value)
+
+
+def test_missing_file_and_bad_override(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope.yaml"):
+        load_yaml(SimulationConfig, tmp_path / "nope.yaml")
+    with pytest.raises(ConfigError, match="key=value"):
+        apply_overrides({}, ["render.backend"])
+    with pytest.raises(ConfigError, match="not a section"):
+        apply_overrides({"duration_s": 1}, ["duration_s.x=2"])

@@ -1,0 +1,38 @@
+"""The Events record."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from esim_lite.events import Events
+
+
+def make(n=5, t=None, x=None):
+    return Events(np.arange(n, dtype=np.int16) if x is None else x, np.zeros(n, np.int16),
+                  np.arange(n, dtype=np.int64) if t is None else t, np.ones(n, np.int8), (4, 8))
+
+
+def test_dtypes_and_lengths_are_checked():
+    with pytest.raises(ValueError, match="int16"):
+        Events(np.zeros(2, np.int32), np.zeros(2, np.int16), np.zeros(2, np.int64),
+               np.ones(2, np.int8), (4, 4))
+    with pytest.raises(ValueError, match="entries"):
+        Events(np.zeros(3, np.int16), np.zeros(2, np.int16), np.zeros(2, np.int64),
+               np.ones(2, np.int8), (4, 4))
+
+
+def test_validate_names_the_source():
+    with pytest.raises(ValueError, match="rec.h5: event coordinates outside"):
+        make(2, x=np.array([0, 9], np.int16)).validate("rec.h5")
+    with pytest.raises(ValueError, match="not sorted"):
+        make(3, t=np.array([0, 2, 1], np.int64)).validate()
+
+
+def test_concatenate_slice_and_counts():
+    a, b = make(3), make(2)
+    c = Events.concatenate([a, b])
+    assert len(c) == 5 and c.slice(1, 3).x.tolist() == [1, 2]
+    img = c.count_image()
+    assert img.shape == (2, 4, 8) and img[0].sum() == 5 and img[1].sum() == 0
+    assert len(Events.concatenate([], (4, 8))) == 0

@@ -1,0 +1,147 @@
+"""Whole sequences: the event/intensity invariant, determinism, noise statistics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from esim_lite.config import CameraConfig, SimulationConfig
+from esim_lite.noise import NoiseConfig, NoiseModel
+from esim_lite.renderer import RenderConfig
+from esim_lite.sequence import frame_times_ns, simulate, simulate_sequence
+from esim_lite.simulator import EventConfig, EventSimulator
+from esim_lite.thresholds import ContrastThresholds, ThresholdConfig, sample_thresholds
+from esim_lite.trajectory import TrajectoryConfig
+from tests.conftest import scene_and_trajectory
+
+SMALL = CameraConfig(width=64, height=48, scales=(2,))
+
+
+def small_config(backend: str = "homography", duration_s: float = 0.2, **events) -> \
+        SimulationConfig:
+    return SimulationConfig(duration_s=duration_s, frame_rate_hz=25.0, camera=SMALL,
+                            render=RenderConfig(backend=backend), events=EventConfig(**events))
+
+
+def test_net_events_track_the_log_intensity_at_every_pixel_and_sample():
+    """For all pixels and sample times t1 < t2 (no noise, no refractory period):
+    |L(t2) - L(t1) - (n_on C+ - n_off C-)| < C+ + C-, with per-pixel mismatched C."""
+    cfg = small_config(duration_s=0.25)
+    rig = cfg.camera.rig()
+    brisk = TrajectoryConfig(speed_m_s=(0.8, 1.2), angular_speed_deg_s=(90, 150))
+    scene, traj = scene_and_trajectory(rig.event, 8, cfg.duration_s, brisk)
+    rng = np.random.default_rng(8)
+    th = sample_thresholds(ThresholdConfig(mismatch_std=0.03), rig.event.hw, rng)
+    assert th.has_mismatch
+    logs, counts = [], []
+    original = EventSimulator.step_log
+
+    def recording(sim, log_img, t_ns):
+        if not logs:
+            logs.append(sim.log_prev.astype(np.float64))
+            counts.append(np.zeros((2,) + rig.event.hw, np.int64))
+        ev = original(sim, log_img, t_ns)
+        logs.append(log_img.astype(np.float64))
+        counts.append(counts[-1] + ev.count_image())
+        return ev
+
+    EventSimulator.step_log = recording
+    try:
+        total = sum(len(c.events) for c in simulate(scene, traj, th, cfg, rng))
+    finally:
+        EventSimulator.step_log = original
+    assert total > 20_000 and len(logs) > 50
+    logs, counts = np.array(logs), np.array(counts)
+    cp, cn = th.pos_map, th.neg_map
+    # from the start: the residual stays inside the (-C-, C+) window
+    resid = logs - logs[0] - (counts[:, 0] * cp - counts[:, 1] * cn)
+    assert np.all(resid < cp + 1e-6) and np.all(resid > -cn - 1e-6)
+    # any two sample times, as the property is stated
+    for k1, k2 in np.random.default_rng(0).integers(0, len(logs), (200, 2)):
+        k1, k2 = min(k1, k2), max(k1, k2)
+        n = counts[k2] - counts[k1]
+        gap = logs[k2] - logs[k1] - (n[0] * cp - n[1] * cn)
+        assert np.all(np.abs(gap) < cp + cn)
+
+
+@pytest.mark.parametrize("backend", ["homography", "mitsuba"])
+def test_same_seed_same_events_and_frames_bit_for_bit(backend):
+    def once(seed):
+        cfg = small_config(backend, duration_s=0.1,
+                           noise=NoiseConfig(shot_rate_hz=2.0, hot_pixel_fraction=0.01,
+                                             hot_pixel_rate_hz=50.0, leak_rate_hz=0.5),
+                           thresholds=ThresholdConfig(mismatch_std=0.02))
+        rig = cfg.camera.rig()
+        scene, traj = scene_and_trajectory(rig.event, seed, cfg.duration_s)
+        rng = np.random.default_rng(seed)
+        th = sample_thresholds(cfg.events.thresholds, rig.event.hw, rng)
+        return simulate_sequence(scene, traj, th, cfg, rng)
+
+    a, b, c = once(3), once(3), once(4)
+    assert len(a.events) > 1000
+    for field in ("x", "y", "t_ns", "p"):
+        np.testing.assert_array_equal(getattr(a.events, field), getattr(b.events, field))
+    for name in a.frames:
+        np.testing.assert_array_equal(a.frames[name].intensity, b.frames[name].intensity)
+    np.testing.assert_array_equal(a.sample_poses, b.sample_poses)
+    assert len(c.events) != len(a.events) or not np.array_equal(c.events.t_ns, a.events.t_ns)
+
+
+def test_sequence_record_shapes_and_frame_times():
+    cfg = small_config(duration_s=0.2)
+    rig = cfg.camera.rig()
+    scene, traj = scene_and_trajectory(rig.event, 2, cfg.duration_s)
+    th = ContrastThresholds.uniform(0.2, 0.2, rig.event.hw)
+    seq = simulate_sequence(scene, traj, th, cfg, np.random.default_rng(0))
+    np.testing.assert_array_equal(seq.frames["lr"].t_ns, [0, 40e6, 80e6, 120e6, 160e6, 200e6])
+    assert seq.frames["lr"].intensity.shape == (6, 48, 64)
+    assert seq.frames["hr_x2"].intensity.shape == (6, 96, 128)
+    assert seq.frame_poses.shape == (6, 8)
+    assert seq.events.is_sorted() and seq.events.t_ns[-1] <= 200_000_000
+    seq.events.validate()
+    np.testing.assert_allclose(np.diff(seq.sample_poses[:, 0]) > 0, True)
+
+
+def test_frame_times():
+    np.testing.assert_array_equal(frame_times_ns(0.1, 30.0), [0, 33333333, 66666667, 100000000])
+    assert len(frame_times_ns(1.0, 50.0)) == 51
+
+
+def static_simulator(noise: NoiseConfig, hw=(40, 50), seconds=2.0, steps=200, seed=0):
+    th = ContrastThresholds.uniform(0.2, 0.2, hw)
+    model = NoiseModel(noise, hw, np.random.default_rng(seed))
+    img = np.full(hw, 0.5, np.float32)
+    sim = EventSimulator(img, 0, th, noise=model)
+    dt = int(seconds * 1e9 / steps)
+    evs = [sim.step(img, dt * (k + 1)) for k in range(steps)]
+    return model, evs
+
+
+def test_static_scene_without_noise_is_silent():
+    _, evs = static_simulator(NoiseConfig())
+    assert sum(len(e) for e in evs) == 0
+
+
+def test_shot_noise_rate_and_polarity_balance():
+    _, evs = static_simulator(NoiseConfig(shot_rate_hz=3.0))
+    p = np.concatenate([e.p for e in evs])
+    expected = 3.0 * 2.0 * 40 * 50
+    assert abs(len(p) - expected) < 5 * np.sqrt(expected)
+    assert abs((p > 0).mean() - 0.5) < 0.03
+    assert all(e.is_sorted() for e in evs)
+
+
+def test_hot_pixels_fire_only_where_chosen():
+    model, evs = static_simulator(NoiseConfig(hot_pixel_fraction=0.01, hot_pixel_rate_hz=100.0))
+    x = np.concatenate([e.x for e in evs]).astype(np.int64)
+    y = np.concatenate([e.y for e in evs]).astype(np.int64)
+    assert set(np.unique(y * 50 + x)) <= set(model.hot_pixels.tolist())
+    assert len(model.hot_pixels) == 20
+    assert abs(len(x) - 100 * 2.0 * 20) < 5 * np.sqrt(4000)
+
+
+def test_leak_makes_on_events_at_the_leak_rate():
+    _, evs = static_simulator(NoiseConfig(leak_rate_hz=2.0, leak_rate_jitter=0.0))
+    p = np.concatenate([e.p for e in evs])
+    assert np.all(p == 1)
+    assert len(p) == 2 * 2 * 40 * 50  # a drift of exactly C every 0.5 s at every pixel
