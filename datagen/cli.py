@@ -1,10 +1,12 @@
-"""The ``datagen`` command line."""
+"""datagen: synthetic event-camera datasets (HDF5 shards) for E2SRI training."""
 
 from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
+from pathlib import Path
 
 from datagen.config import DatagenConfig
 from esim_lite.dataconf import ConfigError, apply_overrides, from_mapping, load_yaml
@@ -19,22 +21,68 @@ def load_config(path: str | None, overrides: list[str]) -> DatagenConfig:
     return from_mapping(DatagenConfig, apply_overrides({}, overrides), source="--set")
 
 
-def _common(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--config", help="YAML config (default: built-in defaults)")
-    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a config value, e.g. simulation.render.backend=homography")
-    p.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
-    p.add_argument("-v", "--verbose", action="store_true")
+def shard_paths(target: str) -> list[Path]:
+    """A shard file, or every ``shard_*.h5`` in a folder."""
+    path = Path(target)
+    if path.is_dir():
+        found = sorted(path.glob("shard_*.h5"))
+        if not found:
+            raise FileNotFoundError(f"{path}: no shard_*.h5 files in this folder")
+        return found
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file or folder")
+    return [path]
 
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="datagen", description=__doc__)
+    parser.add_argument("-v", "--verbose", action="store_true")
     sub = parser.add_subparsers(dest="command", required=True)
-    demo = sub.add_parser("demo", help="simulate one sequence and write a PNG contact sheet")
-    _common(demo)
-    demo.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    demo.add_argument("--index", type=int, default=0, help="sequence index (default 0)")
+
+    gen = sub.add_parser("generate", help="simulate sequences into HDF5 shards")
+    gen.add_argument("--n-seq", type=int, required=True, help="number of sequences")
+    gen.add_argument("--out", required=True, help="output folder for shard_XXXXX.h5 files")
+    gen.add_argument("--config", help="YAML config (default: built-in, see configs/)")
+    gen.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                     help="override a config value, e.g. simulation.render.backend=homography")
+    gen.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
+    gen.add_argument("--scale", help="HR scales: 2, 4 or 2,4 (default from the config)")
+    gen.add_argument("--textures", help="folder or zip/pk3 of images (default: built-in)")
+    gen.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                     help="worker processes (default: all cores)")
+    gen.add_argument("--shard-index", type=int, default=0,
+                     help="this job's index in a job array (default 0)")
+    gen.add_argument("--num-shards", type=int, default=1,
+                     help="jobs splitting the dataset; job i writes shards k with k %% n == i")
+    gen.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    ins = sub.add_parser("inspect", help="summarise shards")
+    ins.add_argument("target", help="a shard file or a folder of shards")
+
+    pre = sub.add_parser("preview", help="a PNG per sequence: frames, events, SBN stack")
+    pre.add_argument("target", help="a shard file or a folder of shards")
+    pre.add_argument("--out", help="output folder (default: <target folder>/preview)")
     return parser
+
+
+def _generate(args: argparse.Namespace) -> int:
+    from datagen.generate import generate
+
+    overrides = list(args.set)
+    if args.scale:
+        scales = [s.strip() for s in args.scale.split(",")]
+        if not scales or any(s not in ("2", "4") for s in scales):
+            raise ValueError(f"--scale must be 2, 4 or 2,4; got {args.scale!r}")
+        overrides.append(f"simulation.camera.scales=[{','.join(scales)}]")
+    if args.textures:
+        overrides.append(f"textures.source={args.textures!s}")
+    config = load_config(args.config, overrides)
+    summary = generate(config, args.out, args.n_seq, seed=args.seed, workers=args.workers,
+                       shard_index=args.shard_index, num_shards=args.num_shards,
+                       show_progress=not args.no_progress)
+    print(summary.line())
+    print(f"shards in {Path(args.out).resolve()}")
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -42,14 +90,23 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     try:
-        config = load_config(args.config, args.set)
-        if args.command == "demo":
-            from datagen.demo import run_demo
+        if args.command == "generate":
+            return _generate(args)
+        paths = shard_paths(args.target)
+        if args.command == "inspect":
+            from datagen.summary import describe_shard
 
-            path = run_demo(config, args.out, seed=args.seed, index=args.index)
-            print(f"contact sheet written to {path.resolve()}")
+            print("\n".join(describe_shard(p) for p in paths))
             return 0
-    except (ConfigError, FileNotFoundError, ValueError) as exc:
+        if args.command == "preview":
+            from datagen.preview import preview_shards
+            from model.stacking import StackConfig
+
+            out = Path(args.out) if args.out else paths[0].parent / "preview"
+            written = preview_shards(paths, out, StackConfig())
+            print(f"wrote {len(written)} preview PNG(s) to {out.resolve()}")
+            return 0
+    except (ConfigError, FileNotFoundError, ValueError, OSError) as exc:
         print(f"datagen: error: {exc}", file=sys.stderr)
         return 2
     return 1

@@ -10,7 +10,9 @@ import cv2
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
+from datagen.shard import ShardReader
 from esim_lite.events import Events
+from model.stacking import StackConfig, sbn_stack
 
 ON_COLOR = np.array([220, 40, 40], np.uint8)  # red: brighter
 OFF_COLOR = np.array([40, 70, 230], np.uint8)  # blue: darker
@@ -80,3 +82,55 @@ def write_png(path: str | Path, rgb: np.ndarray) -> Path:
         Path(tmp).unlink(missing_ok=True)
         raise
     return path
+
+
+def stack_panel(stack: np.ndarray) -> np.ndarray:
+    """uint8[H, c*W + gaps, 3]: an SBN stack's channels side by side, oldest first."""
+    c, h, w = stack.shape
+    gap = np.full((h, 2), 255, np.uint8)
+    parts = []
+    for k in range(c):
+        parts += [stack[k], gap] if k < c - 1 else [stack[k]]
+    return np.repeat(np.concatenate(parts, axis=1)[..., None], 3, axis=2)
+
+
+def sequence_preview(reader: ShardReader, name: str, stacks: StackConfig, rows: int = 2
+                     ) -> np.ndarray:
+    """Contact sheet of one stored sequence: for a few frames, the LR frame, each HR frame,
+    the events since the previous frame and the SBN stack ending at the frame."""
+    attrs = reader.group(name).attrs
+    event_idx = reader.frame_event_idx(name)
+    t_ns = reader.frame_times_ns(name)
+    cams = [c for c in reader.frame_names(name)]
+    picks = np.unique(np.linspace(1, len(t_ns) - 1, rows + 2).round().astype(int)[1:-1]) \
+        if len(t_ns) > 2 else np.arange(1, len(t_ns))
+    panels = []
+    for k in picks:
+        row = [(gray_to_rgb(reader.frame(name, c, int(k))),
+                f"{c} {reader.group(name)['frames'][c].shape[2]}x"
+                f"{reader.group(name)['frames'][c].shape[1]}  frame {k}") for c in cams]
+        between = reader.events(name, int(event_idx[k - 1]), int(event_idx[k]))
+        row.append((event_image(between), f"events since frame {k - 1}: {len(between)}"))
+        lo = max(0, int(event_idx[k]) - 2 * stacks.events_per_stack)
+        window = reader.events(name, lo, int(event_idx[k]))
+        stack = sbn_stack(window, stacks, end=len(window))
+        row.append((stack_panel(stack.image), f"SBN stack ending at frame {k} "
+                    f"({stack.end - stack.start} events)"))
+        panels.append(row)
+    title = (f"{reader.path.name}/{name}  texture {attrs['texture']}  renderer "
+             f"{attrs['renderer']}\nC+ = {attrs['contrast_threshold_pos']:.3f}, "
+             f"C- = {attrs['contrast_threshold_neg']:.3f}, {int(attrs['num_events']):,} events "
+             f"over {float(attrs['duration']):.2f} s, {len(t_ns)} frames")
+    return contact_sheet(panels, title)
+
+
+def preview_shards(paths: list[Path], out_dir: str | Path, stacks: StackConfig
+                   ) -> list[Path]:
+    """Write one PNG per sequence of each shard into ``out_dir``; return their paths."""
+    written = []
+    for path in paths:
+        with ShardReader(path) as reader:
+            for name in reader.sequences():
+                sheet = sequence_preview(reader, name, stacks)
+                written.append(write_png(Path(out_dir) / f"{path.stem}_{name}.png", sheet))
+    return written

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Literal
 
 from esim_lite.camera import CameraRig, Intrinsics
 from esim_lite.renderer import RenderConfig
@@ -38,16 +39,44 @@ class CameraConfig:
 
 
 @dataclass(frozen=True)
+class FrameConfig:
+    """When the LR (APS-like) and HR frames are rendered.
+
+    Attributes:
+        mode: ``events``: a frame at t = 0 and at the timestamp of every ``every_events``-th
+            event (the paper samples ground truth at the last event of each stack, so with
+            ``every_events`` = one stack there is one stack between frames whatever the
+            scene's event rate); ``rate``: frames every ``1 / rate_hz`` seconds, like an APS.
+        every_events: events between frames in ``events`` mode.
+        rate_hz: frame rate in ``rate`` mode.
+        count: end the sequence early once it has this many frames and ``tail_events``
+            more events (the future stacks of the last frame); None runs the full duration.
+        tail_events: see ``count``.
+    """
+
+    mode: Literal["events", "rate"] = "events"
+    every_events: int = 3000
+    rate_hz: float = 50.0
+    count: int | None = None
+    tail_events: int = 12000
+
+    def __post_init__(self) -> None:
+        if self.every_events < 1 or self.rate_hz <= 0 or self.tail_events < 0:
+            raise ValueError("every_events and rate_hz must be positive, tail_events >= 0")
+        if self.count is not None and self.count < 1:
+            raise ValueError("count must be >= 1 or null")
+
+
+@dataclass(frozen=True)
 class SimulationConfig:
     """Everything the simulator needs besides the scene and the random draws.
 
     Attributes:
-        duration_s: sequence length.
-        frame_rate_hz: rate of the LR (APS-like) and HR frames.
+        duration_s: sequence length (the maximum, when ``frames.count`` ends it earlier).
     """
 
     duration_s: float = 1.0
-    frame_rate_hz: float = 50.0
+    frames: FrameConfig = field(default_factory=FrameConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     trajectory: TrajectoryConfig = field(default_factory=TrajectoryConfig)
     events: EventConfig = field(default_factory=EventConfig)
@@ -55,5 +84,5 @@ class SimulationConfig:
     render: RenderConfig = field(default_factory=RenderConfig)
 
     def __post_init__(self) -> None:
-        if self.duration_s <= 0 or self.frame_rate_hz <= 0:
-            raise ValueError("duration_s and frame_rate_hz must be positive")
+        if self.duration_s <= 0:
+            raise ValueError("duration_s must be positive")

@@ -114,9 +114,14 @@ def from_mapping(cls: type[T], data: Mapping[str, Any] | None, *, source: str = 
     if unknown:
         _fail(source, f"{prefix}.{unknown[0]}" if prefix else str(unknown[0]),
               f"unknown key (valid keys: {', '.join(sorted(names))})")
+    defaults = _field_defaults(cls)
     kwargs = {}
     for name, value in data.items():
         key = f"{prefix}.{name}" if prefix else name
+        base = defaults.get(name)
+        if dataclasses.is_dataclass(base) and isinstance(value, Mapping):
+            # a partial section overrides the field's own default, not its class defaults
+            value = _deep_merge(to_mapping(base), value)
         kwargs[name] = _convert(hints[name], value, source, key)
     try:
         return cls(**kwargs)
@@ -124,6 +129,24 @@ def from_mapping(cls: type[T], data: Mapping[str, Any] | None, *, source: str = 
         if isinstance(exc, ConfigError):
             raise
         _fail(source, prefix, str(exc))
+
+
+def _field_defaults(cls: type) -> dict[str, Any]:
+    out = {}
+    for f in dataclasses.fields(cls):
+        if f.default is not dataclasses.MISSING:
+            out[f.name] = f.default
+        elif f.default_factory is not dataclasses.MISSING:
+            out[f.name] = f.default_factory()
+    return out
+
+
+def _deep_merge(base: Mapping[str, Any], update: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(base)
+    for k, v in update.items():
+        out[k] = _deep_merge(out[k], v) if isinstance(v, Mapping) and isinstance(
+            out.get(k), Mapping) else v
+    return out
 
 
 def to_mapping(obj: Any) -> Any:

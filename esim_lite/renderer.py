@@ -31,15 +31,16 @@ class RenderConfig:
 
     Attributes:
         backend: ``mitsuba`` (the project's default) or ``homography`` (exact and fast).
-        supersample_lr: sub-pixel grid side for the event camera (box filter, s*s samples).
-        supersample_hr: sub-pixel grid side for the HR intensity cameras.
+        supersample_lr: sub-pixel grid side for the event camera (box filter, s*s samples);
+            against an 8x8 render, 3x3 leaves <= 2% extra events from aliasing, 2x2 <= 4.3%.
+        supersample_hr: sub-pixel grid side for the HR intensity cameras (frames only).
         mitsuba_variant: ``auto`` or an explicit Mitsuba variant name.
         threads: worker threads for Mitsuba's LLVM backend (None: all cores).
     """
 
     backend: Literal["mitsuba", "homography"] = "mitsuba"
-    supersample_lr: int = 2
-    supersample_hr: int = 1
+    supersample_lr: int = 3
+    supersample_hr: int = 2
     mitsuba_variant: str = "auto"
     threads: int | None = None
 
@@ -49,15 +50,16 @@ class RenderConfig:
 
 
 def make_renderer(scene: PlanarScene, cameras: dict[str, Intrinsics], config: RenderConfig,
-                  antialias_sigma: dict[str, float] | None = None) -> Renderer:
+                  texels_per_sample: dict[str, float] | None = None) -> Renderer:
     """Build the configured backend for ``cameras`` (``"lr"`` gets ``supersample_lr``).
 
     Args:
-        antialias_sigma: per camera, the Gaussian prefilter (texels) of the texture it sees
-            (see :mod:`esim_lite.antialias`); missing cameras see the texture as is.
+        texels_per_sample: per camera, the largest texel footprint of one sample over the
+            sequence; its texture is prefiltered for it (see :mod:`esim_lite.antialias`).
+            Cameras not listed see the texture as is.
     """
-    sigmas = antialias_sigma or {}
-    scenes = {name: prefiltered(scene, sigmas.get(name, 0.0)) for name in cameras}
+    footprint = texels_per_sample or {}
+    scenes = {name: prefiltered(scene, footprint.get(name, 0.0)) for name in cameras}
     supersample = {name: supersample_for(name, config) for name in cameras}
     if config.backend == "homography":
         from esim_lite.render_homography import HomographyRenderer

@@ -7,9 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from esim_lite.antialias import prefilter_sigma, texels_per_sample
+from esim_lite.antialias import texels_per_sample
 from esim_lite.camera import CameraRig
-from esim_lite.config import SimulationConfig
+from esim_lite.config import FrameConfig, SimulationConfig
 from esim_lite.events import Events
 from esim_lite.frames import Frames
 from esim_lite.noise import NoiseModel
@@ -65,16 +65,58 @@ def frame_times_ns(duration_s: float, frame_rate_hz: float) -> np.ndarray:
     return np.round(np.arange(n) * (1e9 / frame_rate_hz)).astype(np.int64)
 
 
+class FrameSchedule:
+    """Decides when frames are due (see :class:`FrameConfig`) and when the sequence is done.
+
+    A frame is always due at t = 0; :meth:`due` then gets every event batch in time order.
+    """
+
+    def __init__(self, config: FrameConfig, duration_s: float) -> None:
+        self.config = config
+        self.rate_times = frame_times_ns(duration_s, config.rate_hz)[1:]
+        self.n_frames = 1
+        self.events_seen = 0
+        self.events_at_last_frame = 0
+        self._next = 0 if config.mode == "rate" else config.every_events
+
+    def due(self, batch: Events, t_ns: int) -> list[int]:
+        """Frame times (ns) falling in the step that produced ``batch`` and ended at ``t_ns``."""
+        cfg, times = self.config, []
+        if cfg.count is not None and self.n_frames >= cfg.count:
+            self.events_seen += len(batch)
+            return times
+        if cfg.mode == "rate":
+            while self._next < len(self.rate_times) and self.rate_times[self._next] <= t_ns:
+                ft = int(self.rate_times[self._next])
+                times.append(ft)
+                self._next += 1
+                self.events_at_last_frame = self.events_seen + int(
+                    np.searchsorted(batch.t_ns, ft, side="right"))
+        else:
+            while self._next <= self.events_seen + len(batch) and (
+                    cfg.count is None or self.n_frames + len(times) < cfg.count):
+                times.append(int(batch.t_ns[self._next - self.events_seen - 1]))
+                self.events_at_last_frame = self._next
+                self._next += cfg.every_events
+        self.n_frames += len(times)
+        self.events_seen += len(batch)
+        return times
+
+    def done(self) -> bool:
+        cfg = self.config
+        return (cfg.count is not None and self.n_frames >= cfg.count
+                and self.events_seen >= self.events_at_last_frame + cfg.tail_events)
+
+
 def _pose_row(t_ns: int, pose: Pose) -> np.ndarray:
     return np.concatenate([[t_ns * 1e-9], pose.to_tq()])
 
 
-def antialias_sigmas(scene: PlanarScene, trajectory: BSplineTrajectory, rig: CameraRig,
-                     config: RenderConfig) -> dict[str, float]:
-    """Per-camera texture prefilter (texels) for the worst view along the trajectory."""
+def sample_footprints(scene: PlanarScene, trajectory: BSplineTrajectory, rig: CameraRig,
+                      config: RenderConfig) -> dict[str, float]:
+    """Per camera, the largest texels-per-sample over the trajectory (for prefiltering)."""
     poses = [trajectory.pose(t) for t in trajectory.sample_times(0.01)]
-    return {name: prefilter_sigma(texels_per_sample(scene, cam, supersample_for(name, config),
-                                                    poses))
+    return {name: texels_per_sample(scene, cam, supersample_for(name, config), poses)
             for name, cam in rig.cameras().items()}
 
 
@@ -98,8 +140,8 @@ def simulate(scene: PlanarScene, trajectory: BSplineTrajectory, thresholds: Cont
                          f"{config.duration_s}s")
     own_renderer = renderer is None
     if own_renderer:
-        sigmas = antialias_sigmas(scene, trajectory, rig, config.render)
-        renderer = make_renderer(scene, rig.cameras(), config.render, sigmas)
+        renderer = make_renderer(scene, rig.cameras(), config.render,
+                                 sample_footprints(scene, trajectory, rig, config.render))
     try:
         yield from _run(renderer, trajectory, thresholds, config, rig, rng, chunk_events)
     finally:
@@ -113,7 +155,6 @@ def _run(renderer: Renderer, trajectory: BSplineTrajectory, thresholds: Contrast
     ev_cfg = config.events
     noise = NoiseModel(ev_cfg.noise, rig.event.hw, rng) if ev_cfg.noise.enabled else None
     t_end = int(round(config.duration_s * 1e9))
-    frame_ts = frame_times_ns(config.duration_s, config.frame_rate_hz)
     names = list(renderer.cameras)
 
     t = 0
@@ -122,17 +163,12 @@ def _run(renderer: Renderer, trajectory: BSplineTrajectory, thresholds: Contrast
     sim = EventSimulator(image, t, thresholds, log_eps=ev_cfg.log_eps,
                          refractory_ns=ev_cfg.refractory_ns, noise=noise)
     sampler = AdaptiveSampler(config.sampling, rig.event, thresholds.min_threshold)
+    schedule = FrameSchedule(config.frames, config.duration_s)
     log_img = log_intensity(image, ev_cfg.log_eps)
-    events, frames, poses, n_events, next_frame = [], [], [_pose_row(t, pose)], 0, 0
+    frames = [FrameSample(0, pose, {n: renderer.render(n, pose) for n in names})]
+    events, poses, n_events = [], [_pose_row(t, pose)], 0
 
-    while True:
-        while next_frame < len(frame_ts) and frame_ts[next_frame] <= t:
-            ft = int(frame_ts[next_frame])
-            fpose = pose if ft == t else trajectory.pose(ft * 1e-9)
-            frames.append(FrameSample(ft, fpose, {n: renderer.render(n, fpose) for n in names}))
-            next_frame += 1
-        if t >= t_end:
-            break
+    while t < t_end and not schedule.done():
         step_s = sampler.propose(log_img, pose, twist)
         while True:
             t_new = min(t + max(1, int(round(step_s * 1e9))), t_end)
@@ -144,6 +180,9 @@ def _run(renderer: Renderer, trajectory: BSplineTrajectory, thresholds: Contrast
                 break
         t, pose, twist, log_img = t_new, new_pose, new_twist, new_log
         batch = sim.step_log(log_img, t)
+        for ft in schedule.due(batch, t):
+            fpose = pose if ft == t else trajectory.pose(ft * 1e-9)
+            frames.append(FrameSample(ft, fpose, {n: renderer.render(n, fpose) for n in names}))
         events.append(batch)
         poses.append(_pose_row(t, pose))
         n_events += len(batch)

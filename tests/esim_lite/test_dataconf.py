@@ -48,3 +48,15 @@ def test_missing_file_and_bad_override(tmp_path):
         apply_overrides({}, ["render.backend"])
     with pytest.raises(ConfigError, match="not a section"):
         apply_overrides({"duration_s": 1}, ["duration_s.x=2"])
+
+
+def test_partial_sections_keep_the_parents_defaults():
+    """A parent may default a nested section differently from that section's class; a
+    partial override of the section must keep the parent's values for the other keys."""
+    from datagen.config import DatagenConfig
+
+    base = DatagenConfig()
+    cfg = load_yaml_text(DatagenConfig, "simulation:\n  render:\n    backend: homography\n")
+    assert cfg.simulation.render.backend == "homography"
+    assert cfg.simulation.frames == base.simulation.frames
+    assert cfg.simulation.duration_s == base.simulation.duration_s != SimulationConfig().duration_s

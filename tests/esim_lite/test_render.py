@@ -8,13 +8,13 @@ import pytest
 from skimage import data
 
 from esim_lite import render_mitsuba
-from esim_lite.antialias import prefilter_sigma, texels_per_sample
+from esim_lite.antialias import texels_per_sample
 from esim_lite.camera import CameraRig, Intrinsics
 from esim_lite.motion import project_plane_point
 from esim_lite.pose import Pose, so3_exp
 from esim_lite.renderer import RenderConfig, make_renderer
 from esim_lite.scene import PlanarScene
-from esim_lite.sequence import antialias_sigmas
+from esim_lite.sequence import sample_footprints
 from esim_lite.simulator import EventSimulator
 from esim_lite.thresholds import ContrastThresholds
 from esim_lite.trajectory import LOOK_DOWN
@@ -78,7 +78,7 @@ def test_hr_frame_area_downsampled_matches_lr_frame(photo_scene, backend):
                                            texture=photo_scene.texture)
     cfg = RenderConfig(backend=backend)
     renderer = make_renderer(rng_scene, rig.cameras(), cfg,
-                             antialias_sigmas(rng_scene, traj, rig, cfg))
+                             sample_footprints(rng_scene, traj, rig, cfg))
     pose = traj.pose(0.1)
     lr = renderer.render("lr", pose)
     for s in (2, 4):
@@ -97,10 +97,12 @@ def test_antialiasing_removes_flicker_events_of_unresolvable_texture():
     scene = PlanarScene(tex, 3.0, 3.0)
     poses = [Pose(LOOK_DOWN, np.array([0.001 * k, 0.0007 * k, 1.0])) for k in range(40)]
     counts = {}
-    for label, sigma in (("raw", 0.0), ("prefiltered", None)):
-        if sigma is None:
-            sigma = prefilter_sigma(texels_per_sample(scene, cam, 2, poses))
-        r = make_renderer(scene, {"lr": cam}, RenderConfig(backend="homography"), {"lr": sigma})
+    for label, footprint in (("raw", 0.0), ("prefiltered", None)):
+        if footprint is None:
+            footprint = texels_per_sample(scene, cam, 2, poses)
+            assert footprint > 4  # far below resolution indeed
+        r = make_renderer(scene, {"lr": cam}, RenderConfig(backend="homography"),
+                          {"lr": footprint})
         th = ContrastThresholds.uniform(0.15, 0.15, cam.hw)
         sim = EventSimulator(r.render("lr", poses[0]), 0, th)
         counts[label] = sum(len(sim.step(r.render("lr", p), 1000 * (k + 1)))

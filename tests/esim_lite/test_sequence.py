@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from esim_lite.config import CameraConfig, SimulationConfig
+from esim_lite.config import CameraConfig, FrameConfig, SimulationConfig
 from esim_lite.noise import NoiseConfig, NoiseModel
 from esim_lite.renderer import RenderConfig
 from esim_lite.sequence import frame_times_ns, simulate, simulate_sequence
@@ -19,7 +19,8 @@ SMALL = CameraConfig(width=64, height=48, scales=(2,))
 
 def small_config(backend: str = "homography", duration_s: float = 0.2, **events) -> \
         SimulationConfig:
-    return SimulationConfig(duration_s=duration_s, frame_rate_hz=25.0, camera=SMALL,
+    return SimulationConfig(duration_s=duration_s, frames=FrameConfig(mode="rate", rate_hz=25.0),
+                            camera=SMALL,
                             render=RenderConfig(backend=backend), events=EventConfig(**events))
 
 
@@ -145,3 +146,21 @@ def test_leak_makes_on_events_at_the_leak_rate():
     p = np.concatenate([e.p for e in evs])
     assert np.all(p == 1)
     assert len(p) == 2 * 2 * 40 * 50  # a drift of exactly C every 0.5 s at every pixel
+
+
+def test_event_triggered_frames_sit_on_every_mth_event_and_the_sequence_stops_after_count():
+    cfg = SimulationConfig(duration_s=3.0, camera=SMALL, render=RenderConfig(backend="homography"),
+                           frames=FrameConfig(mode="events", every_events=500, count=6,
+                                              tail_events=1000))
+    rig = cfg.camera.rig()
+    scene, traj = scene_and_trajectory(rig.event, 5, cfg.duration_s)
+    th = ContrastThresholds.uniform(0.2, 0.2, rig.event.hw)
+    seq = simulate_sequence(scene, traj, th, cfg, np.random.default_rng(0))
+    ft = seq.frames["lr"].t_ns
+    assert len(ft) == 6 and ft[0] == 0
+    np.testing.assert_array_equal(ft[1:], seq.events.t_ns[np.arange(1, 6) * 500 - 1])
+    # stopped at the first sample with 5 * 500 + 1000 events, long before 3 s
+    assert len(seq.events) >= 3500
+    last_step = seq.events.t_ns >= seq.sample_poses[-2, 0] * 1e9
+    assert len(seq.events) - last_step.sum() < 3500
+    assert seq.sample_poses[-1, 0] < 3.0

@@ -1,0 +1,305 @@
+"""The HDF5 shard schema: one writer and one reader that everything else uses.
+
+A shard holds several sequences, one group each, named ``seq_{index:06d}``. Inside a group
+the layout follows event_utils / E2VID-style HDF5 so other tools can read a sequence by
+pointing at its group:
+
+```
+seq_000012/                      attrs: sensor_resolution [H, W], num_events, num_pos,
+                                        num_neg, duration, t0, index, seed, log_eps,
+                                        contrast_threshold_pos, contrast_threshold_neg,
+                                        renderer, texture, frame_dtype
+  events/xs, ys      int16[N]    column, row
+  events/ts          float64[N]  seconds (exact to the nanosecond for t < 10^6 s)
+  events/ps          uint8[N]    1 = ON (brighter), 0 = OFF
+  frames/lr          [T,h,w]     linear intensity, float16 or float32 (see frame_dtype)
+  frames/hr_x2, hr_x4 [T,sh,sw]  the HR cameras present in the rig
+  frames/ts          float64[T]  seconds
+  frames/event_idx   int64[T]    index of the first event after each frame
+  frames/poses       float64[T,8] t, tx, ty, tz, qx, qy, qz, qw at each frame
+  poses              float64[S,8] the same at every render sample (adaptive time grid)
+  cameras/<name>     attrs fx, fy, cx, cy, width, height (lr, hr_x2, ...)
+  scene              attrs width_m, height_m, texture_hw; plane z = 0, normal +z
+  trajectory/        positions [K,3], rotations [K,3,3], attr knot_spacing_s, duration_s
+  thresholds/        pos_map, neg_map float32[H,W] (only when per-pixel mismatch is on)
+/ (file)             attrs: schema_version, config (resolved YAML), complete
+```
+
+Frames are stored as float16 when its rounding (relative 2^-12) changes ``log(eps + I)`` by
+at most 1% of the sequence's smallest contrast threshold, otherwise as float32.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from esim_lite.camera import Intrinsics
+from esim_lite.events import Events
+from esim_lite.frames import Frames
+from esim_lite.thresholds import ContrastThresholds
+
+SCHEMA_VERSION = 1
+FLOAT16_LOG_ERROR = 2.0**-12  # max |log(eps + I16) - log(eps + I)| for normal float16
+EVENT_CHUNK = 1 << 16
+_COMPRESSION = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+
+
+def frame_dtype(min_threshold: float) -> np.dtype:
+    """float16 if its log-intensity rounding is <= 1% of ``min_threshold``, else float32."""
+    return np.dtype(np.float16 if FLOAT16_LOG_ERROR <= 0.01 * min_threshold else np.float32)
+
+
+def sequence_name(index: int) -> str:
+    return f"seq_{index:06d}"
+
+
+class ShardWriter:
+    """Writes sequences into one open HDF5 file; events and frames are appended in chunks.
+
+    Use :meth:`begin_sequence`, then any number of :meth:`append_events` /
+    :meth:`append_frame`, then :meth:`end_sequence`. :meth:`finish` marks the file complete.
+    """
+
+    def __init__(self, path: str | Path, config_yaml: str) -> None:
+        self.path = Path(path)
+        self.file = h5py.File(self.path, "w")
+        self.file.attrs["schema_version"] = SCHEMA_VERSION
+        self.file.attrs["config"] = config_yaml
+        self.file.attrs["complete"] = False
+        self._group: h5py.Group | None = None
+
+    def begin_sequence(self, index: int, seed: int, cameras: dict[str, Intrinsics],
+                       thresholds: ContrastThresholds, log_eps: float, renderer: str,
+                       texture: str, scene_size_m: tuple[float, float],
+                       texture_hw: tuple[int, int], trajectory) -> None:
+        g = self.file.create_group(sequence_name(index))
+        self._group, lr = g, cameras["lr"]
+        self._dtype = frame_dtype(thresholds.min_threshold)
+        g.attrs.update({"sensor_resolution": [lr.height, lr.width], "index": index,
+                        "seed": seed, "log_eps": log_eps, "renderer": renderer,
+                        "texture": texture, "frame_dtype": self._dtype.name,
+                        "contrast_threshold_pos": thresholds.pos,
+                        "contrast_threshold_neg": thresholds.neg})
+        ev = g.create_group("events")
+        for name, dtype in (("xs", np.int16), ("ys", np.int16), ("ts", np.float64),
+                            ("ps", np.uint8)):
+            ev.create_dataset(name, (0,), dtype, maxshape=(None,), chunks=(EVENT_CHUNK,),
+                              **_COMPRESSION)
+        fr = g.create_group("frames")
+        for name, cam in cameras.items():
+            fr.create_dataset(name, (0, cam.height, cam.width), self._dtype,
+                              maxshape=(None, cam.height, cam.width),
+                              chunks=(1, cam.height, cam.width), **_COMPRESSION)
+            c = g.create_group(f"cameras/{name}")
+            c.attrs.update({k: getattr(cam, k) for k in ("fx", "fy", "cx", "cy", "width",
+                                                         "height")})
+        fr.create_dataset("ts", (0,), np.float64, maxshape=(None,))
+        fr.create_dataset("event_idx", (0,), np.int64, maxshape=(None,))
+        fr.create_dataset("poses", (0, 8), np.float64, maxshape=(None, 8))
+        g.create_dataset("poses", (0, 8), np.float64, maxshape=(None, 8), chunks=(1024, 8))
+        sc = g.create_group("scene")
+        sc.attrs.update({"width_m": scene_size_m[0], "height_m": scene_size_m[1],
+                         "texture_hw": list(texture_hw)})
+        tr = g.create_group("trajectory")
+        tr.create_dataset("positions", data=trajectory.positions)
+        tr.create_dataset("rotations", data=trajectory.rotations)
+        tr.attrs.update({"knot_spacing_s": trajectory.knot_spacing_s,
+                         "duration_s": trajectory.duration_s})
+        if thresholds.has_mismatch:
+            th = g.create_group("thresholds")
+            th.create_dataset("pos_map", data=thresholds.pos_map.astype(np.float32))
+            th.create_dataset("neg_map", data=thresholds.neg_map.astype(np.float32))
+        self._n_events = self._n_pos = self._n_pending = 0
+        self._pending: list[Events] = []
+
+    @staticmethod
+    def _append(ds: h5py.Dataset, values: np.ndarray) -> None:
+        n = ds.shape[0]
+        ds.resize(n + len(values), axis=0)
+        ds[n:] = values
+
+    def append_events(self, events: Events) -> None:
+        """Queue events; they reach the file in whole HDF5 chunks, so no compressed chunk is
+        ever rewritten (appending a few thousand events at a time otherwise re-compresses
+        the same 65,536-event chunk dozens of times)."""
+        if not len(events):
+            return
+        self._pending.append(events)
+        self._n_pending += len(events)
+        self._n_events += len(events)
+        self._n_pos += int((events.p > 0).sum())
+        if self._n_pending >= EVENT_CHUNK:
+            self._flush_events(whole_chunks=True)
+
+    def _flush_events(self, whole_chunks: bool) -> None:
+        if not self._pending:
+            return
+        batch = Events.concatenate(self._pending)
+        n = len(batch) - len(batch) % EVENT_CHUNK if whole_chunks else len(batch)
+        rest = batch.slice(n, len(batch))
+        self._pending, self._n_pending = ([rest] if len(rest) else []), len(rest)
+        if n == 0:
+            return
+        batch = batch.slice(0, n)
+        ev = self._group["events"]
+        self._append(ev["xs"], batch.x)
+        self._append(ev["ys"], batch.y)
+        self._append(ev["ts"], batch.t_ns * 1e-9)
+        self._append(ev["ps"], (batch.p > 0).astype(np.uint8))
+
+    def append_frame(self, t_ns: int, pose_row: np.ndarray, images: dict[str, np.ndarray]
+                     ) -> None:
+        """Add one frame; call after appending every event up to ``t_ns``."""
+        fr = self._group["frames"]
+        for name, img in images.items():
+            self._append(fr[name], img[None].astype(self._dtype))
+        self._append(fr["ts"], np.array([t_ns * 1e-9]))
+        self._append(fr["event_idx"], np.array([self._n_events], np.int64))
+        self._append(fr["poses"], pose_row[None])
+
+    def append_poses(self, rows: np.ndarray) -> None:
+        if len(rows):
+            self._append(self._group["poses"], rows)
+
+    def end_sequence(self) -> None:
+        self._flush_events(whole_chunks=False)
+        g = self._group
+        ts = g["events/ts"]
+        g.attrs.update({"num_events": self._n_events, "num_pos": self._n_pos,
+                        "num_neg": self._n_events - self._n_pos,
+                        "t0": float(ts[0]) if len(ts) else 0.0,
+                        "duration": float(ts[-1] - ts[0]) if len(ts) else 0.0})
+        self._group = None
+
+    def finish(self) -> None:
+        """Mark the shard complete and close it (the caller then renames it into place)."""
+        self.file.attrs["complete"] = True
+        self.file.flush()
+        self.file.close()
+
+    def close(self) -> None:
+        if self.file.id.valid:
+            self.file.close()
+
+
+@dataclass(frozen=True, eq=False)
+class SequenceRecord:
+    """One sequence read back from a shard (see the module doc for the fields)."""
+
+    name: str
+    events: Events
+    frames: dict[str, Frames]
+    frame_poses: np.ndarray
+    frame_event_idx: np.ndarray
+    sample_poses: np.ndarray
+    cameras: dict[str, Intrinsics]
+    thresholds: ContrastThresholds
+    attrs: dict
+
+
+class ShardReader:
+    """Read access to a complete shard; the only code that knows the layout for reading.
+
+    Raises:
+        FileNotFoundError: the file does not exist.
+        ValueError: not an e2sr shard, an unknown schema version, or an incomplete shard;
+            the message names the file.
+    """
+
+    def __init__(self, path: str | Path) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise FileNotFoundError(f"{self.path}: no such shard")
+        try:
+            self.file = h5py.File(self.path, "r")
+        except OSError as exc:
+            raise ValueError(f"{self.path}: not a readable HDF5 file ({exc})") from exc
+        version = self.file.attrs.get("schema_version")
+        if version is None:
+            self.close()
+            raise ValueError(f"{self.path}: not an e2sr shard (no schema_version)")
+        if int(version) != SCHEMA_VERSION:
+            self.close()
+            raise ValueError(f"{self.path}: schema version {version}, this reader knows "
+                             f"{SCHEMA_VERSION}")
+        if not bool(self.file.attrs.get("complete", False)):
+            self.close()
+            raise ValueError(f"{self.path}: incomplete shard (generation was interrupted)")
+
+    def __enter__(self) -> ShardReader:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if getattr(self, "file", None) is not None and self.file.id.valid:
+            self.file.close()
+
+    @property
+    def config_yaml(self) -> str:
+        return str(self.file.attrs["config"])
+
+    def sequences(self) -> list[str]:
+        return sorted(k for k in self.file if k.startswith("seq_"))
+
+    def group(self, name: str) -> h5py.Group:
+        if name not in self.file:
+            raise KeyError(f"{self.path}: no sequence {name!r}")
+        return self.file[name]
+
+    def cameras(self, name: str) -> dict[str, Intrinsics]:
+        g = self.group(name)["cameras"]
+        return {n: Intrinsics(**{k: (int if k in ("width", "height") else float)(v)
+                                 for k, v in g[n].attrs.items()}) for n in g}
+
+    def events(self, name: str, start: int = 0, stop: int | None = None) -> Events:
+        """Events ``[start, stop)`` of a sequence (reads only that slice)."""
+        g = self.group(name)
+        ev = g["events"]
+        sl = slice(start, stop)
+        h, w = (int(v) for v in g.attrs["sensor_resolution"])
+        return Events(ev["xs"][sl], ev["ys"][sl], np.round(ev["ts"][sl] * 1e9).astype(np.int64),
+                      np.where(ev["ps"][sl] > 0, 1, -1).astype(np.int8), (h, w))
+
+    def num_events(self, name: str) -> int:
+        return int(self.group(name)["events/ts"].shape[0])
+
+    def frame_names(self, name: str) -> list[str]:
+        """Cameras with frames: ``lr`` first, then the HR ones by scale."""
+        fr = self.group(name)["frames"]
+        names = [n for n in fr if isinstance(fr[n], h5py.Dataset) and fr[n].ndim == 3]
+        return sorted(names, key=lambda n: (n != "lr", fr[n].shape[1]))
+
+    def frame(self, name: str, camera: str, k: int) -> np.ndarray:
+        """float32[H, W] frame ``k`` of ``camera``."""
+        return self.group(name)["frames"][camera][k].astype(np.float32)
+
+    def frame_times_ns(self, name: str) -> np.ndarray:
+        return np.round(self.group(name)["frames/ts"][:] * 1e9).astype(np.int64)
+
+    def frame_event_idx(self, name: str) -> np.ndarray:
+        return self.group(name)["frames/event_idx"][:]
+
+    def thresholds(self, name: str) -> ContrastThresholds:
+        g = self.group(name)
+        hw = tuple(int(v) for v in g.attrs["sensor_resolution"])
+        pos, neg = float(g.attrs["contrast_threshold_pos"]), float(g.attrs["contrast_threshold_neg"])
+        if "thresholds" in g:
+            return ContrastThresholds(pos, neg, g["thresholds/pos_map"][:].astype(np.float64),
+                                      g["thresholds/neg_map"][:].astype(np.float64))
+        return ContrastThresholds.uniform(pos, neg, hw)
+
+    def read(self, name: str) -> SequenceRecord:
+        """The whole sequence in memory."""
+        g = self.group(name)
+        t_ns = self.frame_times_ns(name)
+        frames = {c: Frames(g["frames"][c][:].astype(np.float32), t_ns)
+                  for c in self.frame_names(name)}
+        return SequenceRecord(name, self.events(name), frames, g["frames/poses"][:],
+                              g["frames/event_idx"][:], g["poses"][:], self.cameras(name),
+                              self.thresholds(name), dict(g.attrs))

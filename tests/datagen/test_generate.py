@@ -1,0 +1,220 @@
+"""Dataset generation: schema round trip, determinism, resumption, interruption, errors."""
+
+from __future__ import annotations
+
+import errno
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+
+from datagen import generate as gen
+from datagen.cli import load_config, main
+from datagen.config import DatagenConfig
+from datagen.sampling import sample_sequence
+from datagen.shard import ShardReader, frame_dtype
+from datagen.textures import TextureSampler
+from esim_lite.dataconf import load_yaml
+from esim_lite.sequence import simulate_sequence
+
+ROOT = Path(__file__).resolve().parents[2]
+TINY = ROOT / "configs" / "datagen_tiny.yaml"
+
+
+def tiny(**overrides) -> DatagenConfig:
+    return load_config(str(TINY), [f"{k}={v}" for k, v in overrides.items()])
+
+
+def read_all(folder: Path) -> dict[str, dict[str, np.ndarray]]:
+    out = {}
+    for path in sorted(folder.glob("shard_*.h5")):
+        with ShardReader(path) as r:
+            for name in r.sequences():
+                rec = r.read(name)
+                arrays = {"x": rec.events.x, "y": rec.events.y, "t": rec.events.t_ns,
+                          "p": rec.events.p, "poses": rec.sample_poses,
+                          "event_idx": rec.frame_event_idx}
+                arrays.update({f"frame_{k}": v.intensity for k, v in rec.frames.items()})
+                out[name] = arrays
+    return out
+
+
+def assert_same(a, b):
+    assert a.keys() == b.keys()
+    for name in a:
+        for key in a[name]:
+            np.testing.assert_array_equal(a[name][key], b[name][key], err_msg=f"{name}/{key}")
+
+
+def test_default_config_file_matches_the_builtin_defaults():
+    assert load_yaml(DatagenConfig, ROOT / "configs" / "datagen.yaml") == DatagenConfig()
+
+
+def test_shard_round_trip_equals_the_simulation(tmp_path):
+    cfg = tiny()
+    summary = gen.generate(cfg, tmp_path, n_seq=1, seed=5, show_progress=False)
+    assert summary.sequences == 1 and summary.events > 0
+    spec = sample_sequence(cfg.simulation, TextureSampler(cfg.textures), 5, 0)
+    seq = simulate_sequence(spec.scene, spec.trajectory, spec.thresholds, cfg.simulation,
+                            spec.noise_rng)
+    with ShardReader(tmp_path / "shard_00000.h5") as r:
+        rec = r.read("seq_000000")
+        for f in ("x", "y", "t_ns", "p"):  # float64 seconds give back every nanosecond
+            np.testing.assert_array_equal(getattr(rec.events, f), getattr(seq.events, f))
+        assert rec.events.sensor_hw == (48, 64)
+        np.testing.assert_array_equal(rec.frames["lr"].t_ns, seq.frames["lr"].t_ns)
+        np.testing.assert_array_equal(
+            rec.frame_event_idx, np.searchsorted(seq.events.t_ns, seq.frames["lr"].t_ns, "right"))
+        # stored frames recover log(eps + I) to 1% of the smallest threshold
+        eps = cfg.simulation.events.log_eps
+        for cam in ("lr", "hr_x2"):
+            err = np.abs(np.log(eps + rec.frames[cam].intensity)
+                         - np.log(eps + seq.frames[cam].intensity)).max()
+            assert err <= 0.01 * rec.thresholds.min_threshold
+        assert rec.cameras["hr_x2"].width == 128 and rec.cameras["lr"].height == 48
+        assert rec.thresholds.pos == pytest.approx(seq.thresholds.pos)
+        g = r.group("seq_000000")
+        assert list(g.attrs["sensor_resolution"]) == [48, 64]
+        assert set(np.unique(g["events/ps"][:])) <= {0, 1}
+        assert g["events/ts"].dtype == np.float64 and g["events/xs"].dtype == np.int16
+        assert "simulation:" in r.config_yaml and r.file.attrs["schema_version"] == 1
+
+
+def test_frame_dtype_follows_the_precision_rule():
+    assert frame_dtype(0.12) == np.float16
+    assert frame_dtype(0.02) == np.float32  # float16 rounding would exceed 1% of 0.02
+
+
+def test_same_data_whatever_the_workers_or_job_split(tmp_path):
+    cfg = tiny()
+    gen.generate(cfg, tmp_path / "one", n_seq=4, seed=3, workers=1, show_progress=False)
+    gen.generate(cfg, tmp_path / "two", n_seq=4, seed=3, workers=2, show_progress=False)
+    for i in range(2):  # a two-job array writing into one folder
+        gen.generate(cfg, tmp_path / "split", n_seq=4, seed=3, shard_index=i, num_shards=2,
+                     show_progress=False)
+    one = read_all(tmp_path / "one")
+    assert len(one) == 4
+    assert_same(one, read_all(tmp_path / "two"))
+    assert_same(one, read_all(tmp_path / "split"))
+    other = read_all(Path(gen.generate(cfg, tmp_path / "seed4", n_seq=1, seed=4,
+                                       show_progress=False) and tmp_path / "seed4"))
+    assert not np.array_equal(other["seq_000000"]["t"][:50], one["seq_000000"]["t"][:50])
+
+
+def test_rerun_skips_complete_shards_and_redoes_broken_ones(tmp_path):
+    cfg = tiny()
+    gen.generate(cfg, tmp_path, n_seq=6, seed=1, show_progress=False)
+    reference = read_all(tmp_path)
+    again = gen.generate(cfg, tmp_path, n_seq=6, seed=1, show_progress=False)
+    assert (again.shards_written, again.shards_skipped) == (0, 3)
+    # a shard truncated on disk, a leftover temporary file, a missing shard
+    (tmp_path / "shard_00001.h5").write_bytes(b"\x89HDF garbage")
+    (tmp_path / "shard_00000.h5.tmp-12345").write_bytes(b"partial")
+    (tmp_path / "shard_00002.h5").unlink()
+    again = gen.generate(cfg, tmp_path, n_seq=6, seed=1, show_progress=False)
+    assert (again.shards_written, again.shards_skipped) == (2, 1)
+    assert not list(tmp_path.glob("*.tmp-*"))
+    assert_same(reference, read_all(tmp_path))
+
+
+def test_a_different_config_does_not_overwrite_an_existing_dataset(tmp_path):
+    gen.generate(tiny(), tmp_path, n_seq=2, seed=1, show_progress=False)
+    with pytest.raises(ValueError, match="different config or seed"):
+        gen.generate(tiny(), tmp_path, n_seq=2, seed=2, show_progress=False)
+
+
+@pytest.mark.slow
+def test_kill_9_leaves_no_complete_looking_half_shard(tmp_path):
+    out = tmp_path / "shards"
+    cmd = [sys.executable, "-m", "datagen.cli", "generate", "--config", str(TINY),
+           "--n-seq", "8", "--out", str(out), "--workers", "1", "--seed", "9",
+           "--no-progress", "--set", "simulation.frames.count=40",
+           "--set", "simulation.duration_s=3.0"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + 120
+    while time.time() < deadline and not list(out.glob("shard_00001.h5.tmp-*")):
+        time.sleep(0.05)
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert list(out.glob("*.tmp-*")), "the run was killed while writing shard 1"
+    for path in out.glob("shard_*.h5"):  # whatever has a final name is a finished shard
+        with ShardReader(path) as r:
+            assert len(r.sequences()) == 2
+    assert subprocess.run(cmd).returncode == 0
+    resumed = read_all(out)
+    cfg = load_config(str(TINY), ["simulation.frames.count=40", "simulation.duration_s=3.0"])
+    gen.generate(cfg, tmp_path / "clean", n_seq=8, seed=9, show_progress=False)
+    assert_same(resumed, read_all(tmp_path / "clean"))
+    assert not list(out.glob("*.tmp-*"))
+
+
+def test_cli_errors_name_the_problem(tmp_path, capsys):
+    args = ["generate", "--config", str(TINY), "--n-seq", "1", "--no-progress"]
+    assert main(args + ["--out", str(tmp_path / "a"), "--set", "simulation.camera.widht=3"]) == 2
+    assert "simulation.camera.widht: unknown key" in capsys.readouterr().err
+    assert main(args + ["--out", str(tmp_path / "a"), "--set", "sequences_per_shard=0"]) == 2
+    assert "sequences_per_shard must be >= 1" in capsys.readouterr().err
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert main(args + ["--out", str(blocker / "sub")]) == 2
+    assert f"{blocker / 'sub'}: output folder is not writable" in capsys.readouterr().err
+    assert main(args + ["--out", str(tmp_path / "b"), "--textures", str(tmp_path / "nope")]) == 2
+    assert f"{tmp_path / 'nope'}: texture path does not exist" in capsys.readouterr().err
+    assert main(args + ["--out", str(tmp_path / "c"), "--scale", "3"]) == 2
+    assert "--scale must be 2, 4 or 2,4" in capsys.readouterr().err
+    assert main(["inspect", str(tmp_path / "missing.h5")]) == 2
+    assert "missing.h5: no such file" in capsys.readouterr().err
+
+
+def test_full_disk_is_reported_and_leaves_nothing_behind(tmp_path, monkeypatch):
+    def full(self, events):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr("datagen.shard.ShardWriter.append_events", full)
+    with pytest.raises(gen.DiskFullError, match="disk full while writing"):
+        gen.generate(tiny(), tmp_path, n_seq=1, show_progress=False)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_reader_rejects_incomplete_and_foreign_files(tmp_path):
+    path = tmp_path / "x.h5"
+    with h5py.File(path, "w") as f:
+        f.attrs["schema_version"] = 1
+        f.attrs["complete"] = False
+    with pytest.raises(ValueError, match="x.h5: incomplete shard"):
+        ShardReader(path)
+    with h5py.File(path, "w") as f:
+        f.create_dataset("a", data=[1])
+    with pytest.raises(ValueError, match="x.h5: not an e2sr shard"):
+        ShardReader(path)
+    path.write_bytes(b"not hdf5")
+    with pytest.raises(ValueError, match="x.h5: not a readable HDF5 file"):
+        ShardReader(path)
+
+
+def test_inspect_and_preview(tmp_path, capsys):
+    gen.generate(tiny(), tmp_path, n_seq=2, seed=0, show_progress=False)
+    assert main(["inspect", str(tmp_path)]) == 0
+    text = capsys.readouterr().out
+    assert "2 sequence(s)" in text and "seq_000001" in text and "events" in text
+    assert main(["preview", str(tmp_path), "--out", str(tmp_path / "png")]) == 0
+    pngs = sorted((tmp_path / "png").glob("*.png"))
+    assert len(pngs) == 2
+    from PIL import Image
+
+    img = np.asarray(Image.open(pngs[0]))
+    assert img.ndim == 3 and img.shape[0] > 100 and img.std() > 10
+
+
+def test_worker_count_is_not_part_of_the_dataset_identity(tmp_path):
+    """A dataset started with one --workers value resumes with another."""
+    gen.generate(tiny(), tmp_path, n_seq=4, seed=2, workers=2, show_progress=False)
+    (tmp_path / "shard_00001.h5").unlink()
+    again = gen.generate(tiny(), tmp_path, n_seq=4, seed=2, workers=1, show_progress=False)
+    assert (again.shards_written, again.shards_skipped) == (1, 1)

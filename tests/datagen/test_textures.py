@@ -1,0 +1,87 @@
+"""Texture sources: built-in, folders and zip/pk3 archives, with unreadable files skipped."""
+
+from __future__ import annotations
+
+import logging
+import zipfile
+
+import cv2
+import numpy as np
+import pytest
+
+from datagen.textures import PROCEDURAL, ImageLibrary, TextureConfig, TextureSampler, procedural
+
+
+def write_png(path, rng, hw=(60, 90)):
+    cv2.imwrite(str(path), (rng.random(hw) * 255).astype(np.uint8))
+
+
+def test_builtin_library_needs_no_download():
+    lib = ImageLibrary("builtin")
+    assert len(lib) >= 15
+    assert all(lib.read(i) is not None for i in range(len(lib)))
+
+
+def test_folder_and_archives_with_broken_files(tmp_path, caplog):
+    rng = np.random.default_rng(0)
+    (tmp_path / "sub").mkdir()
+    write_png(tmp_path / "a.png", rng)
+    write_png(tmp_path / "sub" / "b.jpg", rng)
+    (tmp_path / "broken.png").write_bytes(b"not an image")
+    (tmp_path / "notes.txt").write_text("ignored")
+    with zipfile.ZipFile(tmp_path / "pack.pk3", "w") as zf:
+        ok, buf = cv2.imencode(".png", (rng.random((40, 50)) * 255).astype(np.uint8))
+        zf.writestr("textures/c.png", buf.tobytes())
+        zf.writestr("textures/d.tga", b"garbage")
+    (tmp_path / "bad.zip").write_bytes(b"PK not really")
+    lib = ImageLibrary(tmp_path)
+    assert len(lib) == 5  # a.png, b.jpg, broken.png, c.png, d.tga
+    assert lib.skipped == 1  # bad.zip
+    with caplog.at_level(logging.WARNING):
+        images = [lib.read(i) for i in range(len(lib))]
+    assert sum(img is None for img in images) == 2
+    assert lib.skipped == 3
+    assert "broken.png: skipped texture" in caplog.text
+    sampler = TextureSampler(TextureConfig(source=str(tmp_path), procedural_fraction=0.0))
+    tex, name = sampler.sample(np.random.default_rng(1), 1.5, 300)
+    assert "broken" not in name and tex.shape == (200, 300)
+
+
+def test_missing_and_empty_sources_are_clear_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope: texture path does not exist"):
+        ImageLibrary(tmp_path / "nope")
+    with pytest.raises(FileNotFoundError, match="no readable images"):
+        ImageLibrary(tmp_path)
+
+
+@pytest.mark.parametrize("kind", PROCEDURAL)
+def test_procedural_textures(kind):
+    img = procedural(kind, 128, np.random.default_rng(3))
+    assert img.shape == (128, 128) and img.dtype == np.float32
+    assert img.min() == 0.0 and img.max() == pytest.approx(1.0) and img.std() > 0.05
+
+
+def test_sampled_textures_have_the_requested_shape_and_range():
+    cfg = TextureConfig(low_range=(0.05, 0.1), high_range=(0.7, 0.9), max_texels=500)
+    sampler = TextureSampler(cfg)
+    rng = np.random.default_rng(0)
+    for _ in range(8):
+        tex, _ = sampler.sample(rng, 0.75, 800)  # capped at 500 on the longest side
+        assert tex.shape == (500, 375) and tex.dtype == np.float32
+        assert 0.05 <= tex.min() and tex.max() <= 0.9
+        assert tex.max() - tex.min() > 0.5
+
+
+def test_flat_photos_are_redrawn_and_an_all_flat_source_is_an_error(tmp_path):
+    rng = np.random.default_rng(0)
+    write_png(tmp_path / "detailed.png", rng, (200, 200))
+    yy, xx = np.mgrid[0:200, 0:200]
+    cv2.imwrite(str(tmp_path / "flat.png"), (xx / 200 * 255).astype(np.uint8))  # a ramp
+    sampler = TextureSampler(TextureConfig(source=str(tmp_path), procedural_fraction=0.0))
+    names = {sampler.sample(np.random.default_rng(i), 1.0, 64)[1] for i in range(12)}
+    assert all("detailed" in n for n in names)
+    assert sampler.flat > 0
+    (tmp_path / "detailed.png").unlink()
+    with pytest.raises(ValueError, match="flatter than min_detail"):
+        TextureSampler(TextureConfig(source=str(tmp_path), procedural_fraction=0.0)).sample(
+            np.random.default_rng(0), 1.0, 64)
