@@ -288,7 +288,8 @@ class ShardReader:
     def thresholds(self, name: str) -> ContrastThresholds:
         g = self.group(name)
         hw = tuple(int(v) for v in g.attrs["sensor_resolution"])
-        pos, neg = float(g.attrs["contrast_threshold_pos"]), float(g.attrs["contrast_threshold_neg"])
+        pos = float(g.attrs["contrast_threshold_pos"])
+        neg = float(g.attrs["contrast_threshold_neg"])
         if "thresholds" in g:
             return ContrastThresholds(pos, neg, g["thresholds/pos_map"][:].astype(np.float64),
                                       g["thresholds/neg_map"][:].astype(np.float64))
