@@ -41,6 +41,7 @@ from esim_lite.camera import Intrinsics
 from esim_lite.events import Events
 from esim_lite.frames import Frames
 from esim_lite.thresholds import ContrastThresholds
+from esim_lite.trajectory import BSplineTrajectory
 
 SCHEMA_VERSION = 1
 FLOAT16_LOG_ERROR = 2.0**-12  # max |log(eps + I16) - log(eps + I)| for normal float16
@@ -284,6 +285,13 @@ class ShardReader:
 
     def frame_event_idx(self, name: str) -> np.ndarray:
         return self.group(name)["frames/event_idx"][:]
+
+    def trajectory(self, name: str) -> BSplineTrajectory:
+        """The camera trajectory the sequence was simulated with (exact poses at any time)."""
+        tr = self.group(name)["trajectory"]
+        return BSplineTrajectory(tr["positions"][:], tr["rotations"][:],
+                                 float(tr.attrs["knot_spacing_s"]),
+                                 float(tr.attrs["duration_s"]))
 
     def thresholds(self, name: str) -> ContrastThresholds:
         g = self.group(name)

@@ -36,3 +36,15 @@ def project_plane_point(intrinsics: Intrinsics, pose: Pose, point_w: np.ndarray)
     uv = p_c[..., :2] / p_c[..., 2:3]
     return np.stack([intrinsics.fx * uv[..., 0] + intrinsics.cx,
                      intrinsics.fy * uv[..., 1] + intrinsics.cy], axis=-1)
+
+
+def planar_flow(intrinsics: Intrinsics, pose_from: Pose, pose_to: Pose) -> np.ndarray:
+    """float64[H, W, 2]: exact displacement (pixels) of every pixel's plane point between
+    two camera poses (where the point is seen from ``pose_to`` minus where it was)."""
+    points, depth = intersect_plane(pose_from, intrinsics.pixel_rays())
+    uv = project_plane_point(intrinsics, pose_to, points)
+    u, v = np.meshgrid(np.arange(intrinsics.width, dtype=np.float64),
+                       np.arange(intrinsics.height, dtype=np.float64))
+    flow = uv - np.stack([u, v], axis=-1)
+    flow[~(depth > 0)] = 0.0
+    return flow

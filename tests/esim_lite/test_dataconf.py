@@ -60,3 +60,9 @@ def test_partial_sections_keep_the_parents_defaults():
     assert cfg.simulation.render.backend == "homography"
     assert cfg.simulation.frames == base.simulation.frames
     assert cfg.simulation.duration_s == base.simulation.duration_s != SimulationConfig().duration_s
+
+
+def test_scientific_notation_without_a_dot_is_a_number():
+    """YAML 1.1 reads 1e-4 as a string; a float field accepts it anyway."""
+    cfg = load_yaml_text(SimulationConfig, "sampling:\n  min_step_s: 1e-5\n")
+    assert cfg.sampling.min_step_s == 1e-5

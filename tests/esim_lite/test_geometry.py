@@ -121,3 +121,22 @@ def test_motion_field_matches_projected_finite_differences():
     flow = motion_field(cam, pose, tw)
     assert np.abs(flow).max() > 10
     np.testing.assert_allclose(flow, fd, atol=1e-4 * np.abs(fd).max())
+
+
+def test_planar_flow_is_the_exact_displacement_and_integrates_the_motion_field():
+    from esim_lite.motion import planar_flow
+
+    cam = Intrinsics(90.0, 90.0, 30.5, 21.0, 64, 48)
+    traj = sample_trajectory(TrajectoryConfig(angular_speed_deg_s=(60, 90)), 0.5, cam,
+                             np.random.default_rng(6))
+    a, b = traj.pose(0.1), traj.pose(0.13)
+    flow = planar_flow(cam, a, b)
+    pts, _ = intersect_plane(a, cam.pixel_rays())
+    u, v = np.meshgrid(np.arange(64.0), np.arange(48.0))
+    np.testing.assert_allclose(flow, project_plane_point(cam, b, pts) - np.stack([u, v], -1),
+                               atol=1e-9)
+    # over a short interval it is the motion field times the time step
+    h = 1e-5
+    np.testing.assert_allclose(planar_flow(cam, a, traj.pose(0.1 + h)) / h,
+                               motion_field(cam, a, traj.twist(0.1)), rtol=1e-3, atol=1e-3)
+    assert np.abs(planar_flow(cam, a, a)).max() < 1e-9

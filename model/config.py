@@ -1,0 +1,84 @@
+"""The training configuration record (one YAML file per experiment in configs/)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal
+
+from model.dataset import DataConfig
+from model.e2sri_arch import NetConfig
+
+
+@dataclass(frozen=True)
+class LossConfig:
+    """``lpips_weight``: lambda of L1 + lambda * LPIPS (the paper: 0.01; 0 = L1 only)."""
+
+    lpips_weight: float = 0.01
+
+
+@dataclass(frozen=True)
+class OptimConfig:
+    """Adam and the learning-rate schedule.
+
+    Attributes:
+        schedule: ``paper`` (decay x10 at every half of the remaining epochs: E/2, 3E/4,
+            7E/8, ...), ``released`` (x10 at 50% and 75% of the epochs, the authors' code),
+            or ``constant``.
+        lr: initial learning rate (paper 0.01, released code 1e-4).
+    """
+
+    lr: float = 1e-4
+    schedule: Literal["paper", "released", "constant"] = "released"
+    epochs: int = 100
+    batch_size: int = 8
+    betas: tuple[float, float] = (0.9, 0.999)
+    weight_decay: float = 0.0
+    grad_clip: float | None = None
+
+    def __post_init__(self) -> None:
+        if self.lr <= 0 or self.epochs < 1 or self.batch_size < 1:
+            raise ValueError("lr must be > 0, epochs and batch_size >= 1")
+
+
+@dataclass(frozen=True)
+class RunConfig:
+    """Everything about running rather than learning.
+
+    Attributes:
+        seed: data order, augmentation and initial weights.
+        workers: DataLoader worker processes per training process.
+        max_steps, max_minutes: stop early (the first that is reached).
+        log_every, val_every, checkpoint_every: in optimiser steps (0 = only at the end).
+        val_batches: validation batches per evaluation (None = the whole held-out split).
+        amp, channels_last: mixed precision (bfloat16/float16) and NHWC, used on GPUs only.
+        first_pass: a trained main-model checkpoint producing the central input when
+            ``model.central == first_pass`` (Duo-Pass).
+        flow_init: a ``task: flow`` checkpoint initialising the learned FNet
+            (``model.flow == learned``).
+    """
+
+    seed: int = 0
+    workers: int = 2
+    max_steps: int | None = None
+    max_minutes: float | None = None
+    log_every: int = 20
+    val_every: int = 500
+    checkpoint_every: int = 500
+    val_batches: int | None = None
+    amp: bool = True
+    channels_last: bool = True
+    first_pass: str | None = None
+    flow_init: str | None = None
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """``task``: ``e2sri`` trains the network; ``flow`` pre-trains the learnable FNet on the
+    simulator's exact flow (model/flow_pretrain.py)."""
+
+    task: Literal["e2sri", "flow"] = "e2sri"
+    model: NetConfig = field(default_factory=NetConfig)
+    data: DataConfig = field(default_factory=DataConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    run: RunConfig = field(default_factory=RunConfig)

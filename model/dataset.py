@@ -1,0 +1,208 @@
+"""Training samples from datagen shards: SBN stacks around a frame, its LR and HR frames.
+
+A sample is ``n`` stacks whose central one ends at frame ``k``'s event index (the paper
+samples ground truth at the last event of the central stack), its neighbours adjacent or
+overlapped before and after; the HR frame ``k`` is the target and the LR frame ``k`` the APS
+input of the Complementary extension. Training samples are random LR crops (HR crop at the
+same place, ``scale`` times larger; the rig makes them tile exactly) with random flips;
+validation samples are whole frames. Randomness derives from ``(seed, epoch, index)`` only,
+so any worker count, order or resumption gives the same samples.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+from torch.utils.data import Dataset
+
+from datagen.shard import ShardReader
+from esim_lite.motion import planar_flow
+from esim_lite.pose import Pose
+from model.flow import stack_flows
+from model.stacking import StackConfig, stack_sequence
+
+
+@dataclass(frozen=True)
+class DataConfig:
+    """How samples are cut from the shards.
+
+    Attributes:
+        stacks: SBN settings (events per channel, channels, cap, overlap).
+        crop: LR crop side for training (the paper's 64); None trains on whole frames.
+        val_fraction: share of sequences held out (by a hash of shard and sequence name).
+        flow: classical flow computed here (``dis``, ``farneback``), ``exact`` (the
+            simulator's analytic flow between the stacks' end times: training targets for
+            the learned FNet), or ``none``.
+        flips: random horizontal/vertical flips in training.
+    """
+
+    stacks: StackConfig = field(default_factory=StackConfig)
+    crop: int | None = 64
+    val_fraction: float = 0.1
+    flow: Literal["dis", "farneback", "exact", "none"] = "dis"
+    flips: bool = True
+
+    def __post_init__(self) -> None:
+        if self.crop is not None and self.crop < 16:
+            raise ValueError("crop must be >= 16 (or null for whole frames)")
+        if not 0 <= self.val_fraction < 1:
+            raise ValueError("val_fraction must be in [0, 1)")
+
+
+@dataclass(frozen=True)
+class SampleRef:
+    path: str
+    sequence: str
+    frame: int
+    anchor: int
+
+
+def find_shards(root: str | Path) -> list[Path]:
+    root = Path(root)
+    if root.is_file():
+        return [root]
+    shards = sorted(root.glob("shard_*.h5")) if root.is_dir() else []
+    if not shards:
+        raise FileNotFoundError(f"{root}: no shard_*.h5 files (make them with datagen generate)")
+    return shards
+
+
+def split_sequences(keys: list[str], val_fraction: float) -> set[str]:
+    """The held-out sequence keys: the ``ceil(fraction * N)`` with the smallest CRC32, so the
+    split is deterministic and, with >= 2 sequences, never empty."""
+    if val_fraction <= 0 or len(keys) < 2:
+        return set()
+    n_val = min(len(keys) - 1, max(1, math.ceil(val_fraction * len(keys))))
+    return set(sorted(keys, key=lambda k: (zlib.crc32(k.encode()), k))[:n_val])
+
+
+def index_samples(shards: list[Path], data: DataConfig, n_stacks: int, scale: int
+                  ) -> tuple[list[SampleRef], list[SampleRef]]:
+    """(train, val) samples: every frame whose stacks fit inside its sequence's events."""
+    per_stack = data.stacks.events_per_stack
+    half = n_stacks // 2
+    before = per_stack + half * (per_stack - data.stacks.overlap)
+    after = half * (per_stack - data.stacks.overlap)
+    samples: dict[str, list[SampleRef]] = {}
+    for path in shards:
+        with ShardReader(path) as reader:
+            for seq in reader.sequences():
+                cams = reader.frame_names(seq)
+                if f"hr_x{scale}" not in cams:
+                    raise ValueError(f"{path}/{seq}: no hr_x{scale} frames (it has "
+                                     f"{', '.join(cams)}); generate with --scale {scale}")
+                total = reader.num_events(seq)
+                idx = reader.frame_event_idx(seq)
+                samples[f"{path.name}/{seq}"] = [
+                    SampleRef(str(path), seq, k, int(a)) for k, a in enumerate(idx)
+                    if k > 0 and a - before >= 0 and a + after <= total]
+    val_keys = split_sequences(sorted(samples), data.val_fraction)
+    train = [s for k in sorted(samples) if k not in val_keys for s in samples[k]]
+    val = [s for k in sorted(samples) if k in val_keys for s in samples[k]]
+    return train, val
+
+
+def stack_to_input(stacks: np.ndarray) -> np.ndarray:
+    """float32 in [-1, 1] from uint8 SBN values: 0 -> -1 (OFF), 128 -> 0, 255 -> +1 (ON)."""
+    out = (stacks.astype(np.float32) - 127.5) / 127.5
+    out[stacks == 128] = 0.0
+    return out
+
+
+_FLIP_X = np.array([-1.0, 1.0], np.float32)[:, None, None]  # negate dx on a left-right flip
+_FLIP_Y = np.array([1.0, -1.0], np.float32)[:, None, None]  # negate dy on an up-down flip
+
+
+class ShardSamples(Dataset):
+    """``dataset[i]`` -> dict of tensors: ``stacks`` (n, c, h, w) in [-1, 1], ``flows``
+    (n, 2, h, w) pixels, ``lr`` (1, h, w) and ``hr`` (1, s h, s w) linear intensity,
+    ``index``. Shard files are opened lazily, once per process."""
+
+    def __init__(self, refs: list[SampleRef], data: DataConfig, n_stacks: int, scale: int,
+                 train: bool, seed: int = 0) -> None:
+        self.refs, self.data, self.n_stacks, self.scale = refs, data, n_stacks, scale
+        self.train, self.seed, self.epoch = train, seed, 0
+        self._readers: dict[str, ShardReader] = {}
+        self._pid = None
+
+    def set_epoch(self, epoch: int) -> None:
+        self.epoch = epoch
+
+    def __len__(self) -> int:
+        return len(self.refs)
+
+    def _reader(self, path: str) -> ShardReader:
+        if self._pid != os.getpid():  # a DataLoader worker: handles are not inherited
+            self._readers, self._pid = {}, os.getpid()
+        if path not in self._readers:
+            self._readers[path] = ShardReader(path)
+        return self._readers[path]
+
+    def _exact_flows(self, reader: ShardReader, ref: SampleRef, events, built) -> np.ndarray:
+        """float32[n, 2, H, W]: the plane's true flow from the central stack's end time to
+        each stack's end time (LR pixels)."""
+        traj = reader.trajectory(ref.sequence)
+        cam = reader.cameras(ref.sequence)["lr"]
+
+        def pose_at(stack) -> Pose:
+            k = max(stack.end - 1, 0)
+            t = events.t_ns[k] * 1e-9 if len(events) else 0.0
+            return traj.pose(min(max(t, 0.0), traj.duration_s))
+
+        mid = self.n_stacks // 2
+        centre = pose_at(built[mid])
+        flows = np.stack([planar_flow(cam, centre, pose_at(st)).transpose(2, 0, 1)
+                          for st in built]).astype(np.float32)
+        flows[mid] = 0.0  # by definition (the projection round trip leaves ~1e-14)
+        return flows
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        ref, cfg, s = self.refs[i], self.data, self.scale
+        reader = self._reader(ref.path)
+        per_stack, half = cfg.stacks.events_per_stack, self.n_stacks // 2
+        lo = max(0, ref.anchor - per_stack - half * per_stack)
+        hi = min(reader.num_events(ref.sequence), ref.anchor + half * per_stack)
+        events = reader.events(ref.sequence, lo, hi)
+        built = stack_sequence(events, cfg.stacks, ref.anchor - lo, self.n_stacks)
+        stacks = np.stack([st.image for st in built])
+        lr = reader.frame(ref.sequence, "lr", ref.frame)
+        hr = reader.frame(ref.sequence, f"hr_x{s}", ref.frame)
+        exact = self._exact_flows(reader, ref, events, built) if cfg.flow == "exact" else None
+        if self.train:
+            rng = np.random.default_rng([self.seed, self.epoch, i])
+            if cfg.crop is not None:
+                h, w = lr.shape
+                if cfg.crop > min(h, w):
+                    raise ValueError(f"{ref.path}: crop {cfg.crop} exceeds the {w}x{h} frames")
+                y0 = int(rng.integers(0, h - cfg.crop + 1))
+                x0 = int(rng.integers(0, w - cfg.crop + 1))
+                win = (slice(y0, y0 + cfg.crop), slice(x0, x0 + cfg.crop))
+                stacks, lr = stacks[(..., *win)], lr[win]
+                hr = hr[s * y0:s * (y0 + cfg.crop), s * x0:s * (x0 + cfg.crop)]
+                exact = None if exact is None else exact[(..., *win)]
+            if cfg.flips and rng.random() < 0.5:
+                stacks, lr, hr = stacks[..., ::-1], lr[:, ::-1], hr[:, ::-1]
+                exact = None if exact is None else exact[..., ::-1] * _FLIP_X
+            if cfg.flips and rng.random() < 0.5:
+                stacks, lr, hr = stacks[..., ::-1, :], lr[::-1], hr[::-1]
+                exact = None if exact is None else exact[..., ::-1, :] * _FLIP_Y
+        stacks = np.ascontiguousarray(stacks)
+        n, _, h, w = stacks.shape
+        if exact is not None:
+            flows = np.ascontiguousarray(exact, np.float32)
+        elif cfg.flow in ("dis", "farneback"):
+            flows = stack_flows(stacks, cfg.flow)
+        else:
+            flows = np.zeros((n, 2, h, w), np.float32)
+        return {"stacks": torch.from_numpy(stack_to_input(stacks)),
+                "flows": torch.from_numpy(flows),
+                "lr": torch.from_numpy(np.ascontiguousarray(lr))[None],
+                "hr": torch.from_numpy(np.ascontiguousarray(hr))[None],
+                "index": torch.tensor(i)}

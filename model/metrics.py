@@ -1,0 +1,60 @@
+"""Image quality metrics of the paper: PSNR, SSIM, MSE (and LPIPS from :mod:`model.lpips`).
+
+All take ``(B, 1, H, W)`` tensors with values in [0, 1] and return ``(B,)`` tensors.
+SSIM is Wang et al.'s with an 11x11 Gaussian window (sigma 1.5), K1 = 0.01, K2 = 0.03,
+averaged over the positions where the window fits (scikit-image's ``gaussian_weights=True,
+use_sample_covariance=False`` convention; checked against it in the tests).
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+import torch.nn.functional as F
+
+
+def _check(x: torch.Tensor, y: torch.Tensor) -> None:
+    if x.shape != y.shape or x.ndim != 4:
+        raise ValueError(f"metrics need two (B, C, H, W) tensors of one shape, got "
+                         f"{tuple(x.shape)} and {tuple(y.shape)}")
+
+
+def mse(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    _check(x, y)
+    return ((x.float() - y.float()) ** 2).mean(dim=(1, 2, 3))
+
+
+def psnr(x: torch.Tensor, y: torch.Tensor, data_range: float = 1.0) -> torch.Tensor:
+    """Peak signal-to-noise ratio in dB (inf for identical images)."""
+    return 10 * torch.log10(data_range**2 / mse(x, y))
+
+
+def _gaussian_window(size: int = 11, sigma: float = 1.5, device=None) -> torch.Tensor:
+    r = torch.arange(size, dtype=torch.float64, device=device) - (size - 1) / 2
+    g = torch.exp(-(r**2) / (2 * sigma**2))
+    g = g / g.sum()
+    return (g[:, None] * g[None, :])[None, None]
+
+
+def ssim(x: torch.Tensor, y: torch.Tensor, data_range: float = 1.0) -> torch.Tensor:
+    """Structural similarity, mean over channels and window positions."""
+    _check(x, y)
+    if min(x.shape[-2:]) < 11:
+        raise ValueError(f"SSIM needs images of at least 11x11, got {tuple(x.shape[-2:])}")
+    c = x.shape[1]
+    x, y = x.double(), y.double()
+    w = _gaussian_window(device=x.device).expand(c, 1, 11, 11)
+
+    def filt(z: torch.Tensor) -> torch.Tensor:
+        return F.conv2d(z, w, groups=c)
+
+    mx, my = filt(x), filt(y)
+    vx, vy, cxy = filt(x * x) - mx**2, filt(y * y) - my**2, filt(x * y) - mx * my
+    c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
+    s = ((2 * mx * my + c1) * (2 * cxy + c2)) / ((mx**2 + my**2 + c1) * (vx + vy + c2))
+    return s.mean(dim=(1, 2, 3)).float()
+
+
+def psnr_from_mse(value: float, data_range: float = 1.0) -> float:
+    return math.inf if value == 0 else 10 * math.log10(data_range**2 / value)
