@@ -267,6 +267,18 @@ class ShardReader:
         return Events(ev["xs"][sl], ev["ys"][sl], np.round(ev["ts"][sl] * 1e9).astype(np.int64),
                       np.where(ev["ps"][sl] > 0, 1, -1).astype(np.int8), (h, w))
 
+    def event_index_at(self, name: str, t_ns: int) -> int:
+        """Index of the first event later than ``t_ns`` (bisection: ~log2(N) reads)."""
+        ts = self.group(name)["events/ts"]
+        lo, hi, t = 0, ts.shape[0], t_ns * 1e-9
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if ts[mid] <= t:
+                lo = mid + 1
+            else:
+                hi = mid
+        return lo
+
     def num_events(self, name: str) -> int:
         return int(self.group(name)["events/ts"].shape[0])
 

@@ -160,3 +160,20 @@ def stack_sequence(events: Events, config: StackConfig, anchor: int, n_stacks: i
         prev = sbn_stack(events, config, start=prev.end - config.overlap)
         after.append(prev)
     return before[::-1] + [centre] + after
+
+
+def stack_sequence_by_time(events: Events, config: StackConfig, t_anchor_ns: int,
+                           n_stacks: int) -> list[Stack]:
+    """``n_stacks`` SBT stacks of ``channels x channel_ms``, the central one ending at
+    ``t_anchor_ns``, the others adjacent in time. Returned in time order."""
+    if n_stacks < 1 or n_stacks % 2 == 0:
+        raise ValueError(f"n_stacks must be odd and >= 1, got {n_stacks}")
+    span = stack_span_ns(config)
+    half = n_stacks // 2
+    return [sbt_stack(events, config, t_end_ns=t_anchor_ns + k * span)
+            for k in range(-half, half + 1)]
+
+
+def stack_span_ns(config: StackConfig) -> int:
+    """Duration of one SBT stack in nanoseconds."""
+    return int(round(config.channels * config.channel_ms * 1e6))

@@ -85,3 +85,14 @@ def test_sbt_windows():
 def test_events_per_channel_scales_with_area():
     assert StackConfig.events_per_channel_for((180, 240)) == 1667
     assert StackConfig.events_per_channel_for((128, 128)) == 632
+
+
+def test_sbt_sequence_is_adjacent_in_time():
+    from model.stacking import stack_sequence_by_time
+
+    ev = random_events(5000)
+    cfg = StackConfig(method="sbt", channels=3, channel_ms=20.0)
+    stacks = stack_sequence_by_time(ev, cfg, t_anchor_ns=500_000_000, n_stacks=3)
+    assert [s.end for s in stacks[:-1]] == [s.start for s in stacks[1:]]
+    assert np.searchsorted(ev.t_ns, 500_000_000, "right") == stacks[1].end
+    assert np.searchsorted(ev.t_ns, 440_000_000, "right") == stacks[1].start

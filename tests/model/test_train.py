@@ -189,3 +189,14 @@ def test_cli(tiny_shards, tmp_path, capsys):
     assert "optim.lrr: unknown key" in capsys.readouterr().err
     assert main(["--data", str(tiny_shards), "--config", cfg, "--set", "model.scale=4"]) == 2
     assert "no hr_x4 frames" in capsys.readouterr().err
+
+
+def test_stacking_by_time_feeds_the_same_pipeline(tiny_shards, tmp_path):
+    data = DataConfig(stacks=StackConfig(method="sbt", channels=3, channel_ms=2.0), crop=32)
+    refs, _ = index_samples(find_shards(tiny_shards), data, 3, 2)
+    assert refs
+    sample = ShardSamples(refs, data, 3, 2, train=True)[0]
+    assert sample["stacks"].shape == (3, 3, 32, 32) and sample["stacks"].abs().sum() > 0
+    result = train(tiny_config("data.stacks.method=sbt", "data.stacks.channel_ms=2.0",
+                               "run.max_steps=2"), tiny_shards, tmp_path, show_progress=False)
+    assert result["step"] == 2
