@@ -220,8 +220,10 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
         total = min(total, run.max_steps)
     loader_args = {"num_workers": run.workers, "pin_memory": cuda}
     val_loader = DataLoader(val_set, batch_size=cfg.optim.batch_size, **loader_args)
-    bar = tqdm(total=total, initial=step, disable=not (show_progress and env.main), unit="step",
-               desc="train")
+    # with a time budget the number of steps is unknown: no total, so no made-up ETA
+    bar = tqdm(total=None if run.max_minutes else total, initial=step, unit="step",
+               disable=not (show_progress and env.main),
+               desc=f"train (stops after {run.max_minutes:g} min)" if run.max_minutes else "train")
     start, stop = time.perf_counter(), step >= total
     if env.main:
         log.info("%d parameters, %d train / %d val samples, %d steps per epoch",
