@@ -73,12 +73,17 @@ def config_of(ckpt: dict[str, Any], source: str = "checkpoint") -> TrainConfig:
     return load_yaml_text(TrainConfig, ckpt["config"], source=source)
 
 
-def load_model(path: str | Path, device: str | torch.device = "cpu") -> E2SRI:
-    """The network stored in a checkpoint, in eval mode."""
-    ckpt = load(path)
-    net = E2SRI(from_mapping(NetConfig, ckpt["net"], source=str(path)))
+def model_from(ckpt: dict[str, Any], device: str | torch.device = "cpu",
+               source: str = "checkpoint") -> E2SRI:
+    """The network stored in a loaded checkpoint, in eval mode."""
+    net = E2SRI(from_mapping(NetConfig, ckpt["net"], source=source))
     net.load_state_dict(ckpt["model"])
     return net.to(device).eval()
+
+
+def load_model(path: str | Path, device: str | torch.device = "cpu") -> E2SRI:
+    """The network stored in a checkpoint file, in eval mode."""
+    return model_from(load(path), device, str(path))
 
 
 def net_args(net: E2SRI) -> dict[str, Any]:

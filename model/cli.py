@@ -1,4 +1,4 @@
-"""The ``train`` command line: train E2SRI on datagen shards."""
+"""Command lines of the model: ``train``, ``reconstruct`` and ``evaluate``."""
 
 from __future__ import annotations
 
@@ -59,3 +59,97 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def _sensor(text: str | None) -> tuple[int, int] | None:
+    if not text:
+        return None
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError as exc:
+        raise ValueError(f"--sensor-size must look like 240x180 (width x height), got "
+                         f"{text!r}") from exc
+    return h, w
+
+
+def reconstruct_main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="reconstruct", description="Super-resolved images from "
+                                "an event recording (shard, HDF5, ECD text, AEDAT4, raw).")
+    p.add_argument("input", help="recording: .h5, events.txt or its folder, .aedat4, .raw")
+    p.add_argument("--checkpoint", required=True, help="a trained model (train's last.pt)")
+    p.add_argument("--out", required=True, help="folder for frame_XXXXXX.png")
+    p.add_argument("--mode", choices=["main", "complementary", "duo-pass"], default="main")
+    p.add_argument("--first-pass", help="main model checkpoint for --mode duo-pass")
+    p.add_argument("--sensor-size", help="WxH, when the file does not say (e.g. 240x180)")
+    p.add_argument("--sequence", help="sequence of a shard (default: the first)")
+    p.add_argument("--at", choices=["auto", "frames", "events", "rate"], default="auto",
+                   help="output at APS frames, every stack of events, or --rate (default: "
+                        "frames if the file has them, else events)")
+    p.add_argument("--rate", type=float, help="outputs per second with --at rate")
+    p.add_argument("--every", type=int, help="events between outputs with --at events "
+                   "(default: one stack)")
+    p.add_argument("--events-per-stack", type=int,
+                   help="default: the model's, scaled by the sensor area")
+    p.add_argument("--limit", type=int, help="stop after this many frames")
+    p.add_argument("--mp4", action="store_true", help="also write video.mp4")
+    p.add_argument("--device", help="cpu or cuda (default: cuda if present)")
+    p.add_argument("--no-progress", action="store_true")
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        from model.reconstruct import Reconstructor, plan_outputs, reconstruct
+        from model.recording import open_recording
+
+        rec = open_recording(args.input, _sensor(args.sensor_size), args.sequence)
+        model = Reconstructor.load(args.checkpoint, rec.sensor_hw, args.mode, args.first_pass,
+                                   args.events_per_stack, args.device)
+        plan = plan_outputs(rec, model.stacks, args.at, args.rate, args.every)
+        result = reconstruct(rec, model, args.out, plan, args.mp4, not args.no_progress,
+                             args.limit)
+    except (ConfigError, FileNotFoundError, ValueError) as exc:
+        print(f"reconstruct: error: {exc}", file=sys.stderr)
+        return 2
+    n = len(result.frames)
+    per = {k: 1e3 * v / max(n, 1) for k, v in result.seconds.items()}
+    print(f"wrote {n} frame(s) to {args.out} ({rec.kind}, {rec.sensor_hw[1]}x{rec.sensor_hw[0]}"
+          f" sensor, {model.stacks.events_per_stack} events per stack); ms per frame: "
+          + ", ".join(f"{k} {v:.1f}" for k, v in per.items()))
+    return 0
+
+
+def evaluate_main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="evaluate", description="PSNR/SSIM/MSE/LPIPS and E_warp "
+                                "of E2SRI and classical baselines (HF, direct integration, "
+                                "complementary filter).")
+    p.add_argument("--checkpoint", required=True)
+    p.add_argument("--data", help="shards: evaluate on the checkpoint's held-out split")
+    p.add_argument("--recording", action="append", default=[],
+                   help="a recording with APS frames (repeatable)")
+    p.add_argument("--out", required=True, help="folder for metrics.md/.csv and figure.png")
+    p.add_argument("--normalize", choices=["affine", "minmax", "none"], default="affine")
+    p.add_argument("--every", type=int, default=1, help="every k-th frame")
+    p.add_argument("--max-frames", type=int, help="per sequence")
+    p.add_argument("--no-baselines", action="store_true")
+    p.add_argument("--no-temporal", action="store_true", help="skip the ours+tc post-process")
+    p.add_argument("--first-pass", help="main model checkpoint for a Duo-Pass model")
+    args = p.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        from model.evaluate import BASELINES, EvalOptions, evaluate
+
+        options = EvalOptions(normalize=args.normalize, every=args.every,
+                              max_frames=args.max_frames,
+                              baselines=() if args.no_baselines else BASELINES,
+                              temporal=not args.no_temporal)
+        rows = evaluate(args.checkpoint, args.out, args.data, args.recording, options,
+                        args.first_pass)
+    except (ConfigError, FileNotFoundError, ValueError) as exc:
+        print(f"evaluate: error: {exc}", file=sys.stderr)
+        return 2
+    for r in rows:
+        if r["sequence"] == "average":
+            print(f"{r['protocol']:>2} {r['method']:<13} PSNR {r['psnr']:6.2f}  SSIM "
+                  f"{r['ssim']:.3f}  MSE {r['mse']:.4f}  LPIPS {r.get('lpips', float('nan')):.3f}"
+                  f"  E_warp {r['ewarp']:.2f}")
+    print(f"tables: {args.out}/metrics.md, {args.out}/metrics.csv; figure: {args.out}/figure.png")
+    return 0

@@ -152,8 +152,9 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
     cfg, run = config, config.run
     torch.manual_seed(run.seed)
 
-    train_refs, val_refs = index_samples(find_shards(data), cfg.data, cfg.model.n_stacks,
-                                         cfg.model.scale)
+    shards = find_shards(data)
+    train_refs, val_refs = index_samples(shards, cfg.data, cfg.model.n_stacks, cfg.model.scale)
+    sensor_hw = sensor_of(shards[0])
     train_set = ShardSamples(train_refs, cfg.data, cfg.model.n_stacks, cfg.model.scale, True,
                              run.seed)
     val_set = ShardSamples(val_refs, cfg.data, cfg.model.n_stacks, cfg.model.scale, False)
@@ -206,7 +207,7 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
             checkpoint.save(path, model=net.state_dict(), optimizer=optimizer.state_dict(),
                             scheduler=scheduler.state_dict(), step=step, epoch=epoch,
                             batch_in_epoch=offset, rng=checkpoint.rng_state(), config=config_yaml,
-                            net=checkpoint.net_args(net), **extra)
+                            net=checkpoint.net_args(net), sensor_hw=sensor_hw, **extra)
 
     writer = None
     if env.main:
@@ -299,6 +300,15 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
     if env.world > 1:
         dist.barrier()
     return result
+
+
+def sensor_of(shard: Path) -> tuple[int, int]:
+    """(H, W) of the event sensor the training data was simulated with."""
+    from datagen.shard import ShardReader
+
+    with ShardReader(shard) as reader:
+        h, w = reader.group(reader.sequences()[0]).attrs["sensor_resolution"]
+    return int(h), int(w)
 
 
 def weights_digest(net: torch.nn.Module) -> str:

@@ -23,3 +23,13 @@ def tiny_shards(tmp_path_factory) -> Path:
 
 def tiny_config(*overrides: str):
     return load_config(str(ROOT / "configs" / "train_tiny.yaml"), list(overrides))
+
+
+@pytest.fixture(scope="session")
+def tiny_checkpoint(tiny_shards, tmp_path_factory) -> Path:
+    """A tiny model trained for a few steps (for pipelines, not quality)."""
+    from model.train import train
+
+    out = tmp_path_factory.mktemp("tiny_run")
+    train(tiny_config("run.max_steps=3"), tiny_shards, out, show_progress=False)
+    return out / "last.pt"

@@ -1,0 +1,262 @@
+"""Events in, super-resolved images out: run a trained E2SRI on any recording.
+
+Output times: the APS frames' timestamps when the file has frames, else the end of every
+stack of events (SBN), else a given rate. For each output the events around it are stacked
+exactly as in training (central stack ending at the output time), the flow to each side
+stack is computed, and the network runs on the whole sensor (it is fully convolutional,
+so any sensor size works). Events stream through a sliding window: memory does not grow
+with the length of the recording.
+
+The number of events per stack scales with the sensor area from what the model was trained
+with (the paper: ~3,000 per stack at 128x128 becomes ~7,900 at 240x180), unless given.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Literal
+
+import cv2
+import numpy as np
+import torch
+import torch.nn.functional as F
+from tqdm import tqdm
+
+from esim_lite.events import Events
+from model import checkpoint
+from model.dataset import stack_to_input
+from model.e2sri_arch import E2SRI
+from model.flow import stack_flows
+from model.recording import Recording
+from model.stacking import StackConfig, stack_sequence
+
+log = logging.getLogger(__name__)
+Mode = Literal["main", "complementary", "duo-pass"]
+_CENTRAL = {"main": "stack", "complementary": "aps", "duo-pass": "first_pass"}
+
+
+class EventWindow:
+    """Random access by global event index to a chunked stream, keeping only what is still
+    needed: below the last :meth:`forget` index, and (with ``keep``) more than ``keep``
+    events behind the newest one read, events are dropped, unless ``pin`` holds them."""
+
+    def __init__(self, chunks: Iterator[Events], hw: tuple[int, int],
+                 keep: int | None = None) -> None:
+        self._chunks, self.hw, self.keep = chunks, hw, keep
+        self.buf, self.offset, self.done = Events.empty(hw), 0, False
+        self.pin: int | None = None
+
+    @property
+    def end(self) -> int:
+        return self.offset + len(self.buf)
+
+    def _pull(self) -> bool:
+        try:
+            chunk = next(self._chunks)
+        except StopIteration:
+            self.done = True
+            return False
+        self.buf = Events.concatenate([self.buf, chunk], self.hw)
+        if self.keep is not None:  # reading far ahead must not grow memory without bound
+            floor = self.end - self.keep
+            self.forget(floor if self.pin is None else min(floor, self.pin))
+        return True
+
+    def index_after(self, t_ns: int) -> int:
+        """Global index of the first event later than ``t_ns`` (reads ahead as needed)."""
+        while not self.done and (not len(self.buf) or self.buf.t_ns[-1] <= t_ns):
+            self._pull()
+        return self.offset + int(np.searchsorted(self.buf.t_ns, t_ns, side="right"))
+
+    def time_of(self, index: int) -> int | None:
+        while not self.done and self.end <= index:
+            self._pull()
+        return int(self.buf.t_ns[index - self.offset]) if index < self.end else None
+
+    def slice(self, lo: int, hi: int) -> tuple[Events, int]:
+        """(events [lo, hi) clipped to what exists, the global index of its first event)."""
+        while not self.done and self.end < hi:
+            self._pull()
+        lo = max(lo, self.offset)
+        return self.buf.slice(lo - self.offset, max(lo, min(hi, self.end)) - self.offset), lo
+
+    def forget(self, index: int) -> None:
+        if index > self.offset:
+            self.buf = self.buf.slice(min(index, self.end) - self.offset, len(self.buf))
+            self.offset = min(index, self.end)
+
+
+@dataclass(frozen=True, eq=False)
+class Reconstructor:
+    """A loaded network (plus its first pass for Duo-Pass) and how to stack events for it."""
+
+    net: E2SRI
+    first_pass: E2SRI | None
+    stacks: StackConfig
+    device: torch.device
+
+    @classmethod
+    def load(cls, ckpt: str | Path, sensor_hw: tuple[int, int], mode: Mode = "main",
+             first_pass: str | Path | None = None, events_per_stack: int | None = None,
+             device: str | None = None) -> Reconstructor:
+        dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+        state = checkpoint.load(ckpt)
+        net = checkpoint.model_from(state, dev, str(ckpt))
+        if net.config.central != _CENTRAL[mode]:
+            raise ValueError(f"{ckpt}: a model with central input {net.config.central!r} "
+                             f"cannot run in mode {mode!r} (needs {_CENTRAL[mode]!r})")
+        if net.config.flow == "none":
+            log.info("%s: a model without flow input", ckpt)
+        first = None
+        if mode == "duo-pass":
+            path = first_pass or checkpoint.config_of(state).run.first_pass
+            if not path:
+                raise ValueError("duo-pass needs --first-pass (a main model checkpoint)")
+            first = checkpoint.load_model(path, dev)
+        trained = checkpoint.config_of(state, str(ckpt)).data.stacks
+        trained_hw = tuple(state.get("sensor_hw", (128, 128)))
+        if events_per_stack is None:
+            area = sensor_hw[0] * sensor_hw[1] / (trained_hw[0] * trained_hw[1])
+            per_channel = max(1, round(trained.events_per_channel * area))
+        else:
+            per_channel = max(1, events_per_stack // trained.channels)
+        return cls(net, first, replace(trained, events_per_channel=per_channel), dev)
+
+    @torch.inference_mode()
+    def run(self, stacks: np.ndarray, aps: np.ndarray | None) -> tuple[np.ndarray, dict]:
+        """(float32[sH, sW] image in [0, 1], seconds spent in flow and network) for uint8
+        stacks ``[n, c, H, W]`` (and the APS frame for Complementary)."""
+        timing = {}
+        start = time.perf_counter()
+        flows = stack_flows(stacks) if self.net.config.flow == "given" else \
+            np.zeros((len(stacks), 2) + stacks.shape[-2:], np.float32)
+        timing["flow"] = time.perf_counter() - start
+        start = time.perf_counter()
+        x = torch.from_numpy(stack_to_input(stacks))[None].to(self.device)
+        f = torch.from_numpy(flows)[None].to(self.device)
+        mid = x.shape[1] // 2
+        central = self._central(x, f, aps, mid)
+        out = self.net(x, central, f).clamp(0, 1)[0, 0].float().cpu().numpy()
+        if self.device.type == "cuda":
+            torch.cuda.synchronize()
+        timing["network"] = time.perf_counter() - start
+        return out, timing
+
+    def _central(self, x, f, aps, mid):
+        kind = self.net.config.central
+        if kind == "stack":
+            return x[:, mid]
+        if kind == "aps":
+            if aps is None:
+                raise ValueError("Complementary mode needs an APS frame at every output")
+            return torch.from_numpy(aps.astype(np.float32))[None, None].to(self.device)
+        first = self.first_pass(x, x[:, mid], f).clamp(0, 1)
+        return F.avg_pool2d(first, self.net.config.scale)
+
+
+@dataclass(frozen=True)
+class OutputPlan:
+    """``at``: ``frames`` (APS timestamps), ``events`` (every ``every_events``) or ``rate``."""
+
+    at: Literal["frames", "events", "rate"]
+    every_events: int = 0
+    rate_hz: float = 0.0
+
+
+def plan_outputs(recording: Recording, stacks: StackConfig, at: str = "auto",
+                 rate_hz: float | None = None, every_events: int | None = None) -> OutputPlan:
+    if at == "auto":
+        at = "frames" if recording.frames is not None else "rate" if rate_hz else "events"
+    if at == "frames" and recording.frames is None:
+        raise ValueError(f"{recording.path}: has no APS frames to output at")
+    if at == "rate" and not rate_hz:
+        raise ValueError("output at a rate needs --rate HZ")
+    return OutputPlan(at, every_events or stacks.events_per_stack, rate_hz or 0.0)
+
+
+def output_times(plan: OutputPlan, recording: Recording, window: EventWindow
+                 ) -> Iterator[tuple[int, int | None]]:
+    """(time in ns, index of the APS frame or None) of every output, in order."""
+    if plan.at == "frames":
+        for k, t in enumerate(recording.frames.t_ns):
+            yield int(t), k
+        return
+    t0 = window.time_of(0)
+    if plan.at == "rate":
+        step = int(round(1e9 / plan.rate_hz))
+        t = t0
+        while window.time_of(window.index_after(t)) is not None:
+            yield t, None
+            t += step
+        return
+    k = plan.every_events
+    while (t := window.time_of(k - 1)) is not None:
+        yield t, None
+        k += plan.every_events
+
+
+@dataclass(frozen=True)
+class ReconstructResult:
+    frames: list[Path]
+    times_ns: list[int]
+    seconds: dict[str, float]
+
+
+def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
+                plan: OutputPlan, mp4: bool = False, show_progress: bool = True,
+                limit: int | None = None, chunk: int = 1_000_000) -> ReconstructResult:
+    """Write ``frame_XXXXXX.png`` (and ``timestamps.txt``, ``video.mp4``) into ``out``."""
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    n = model.net.config.n_stacks
+    per, half = model.stacks.events_per_stack, n // 2
+    window = EventWindow(recording.events(chunk), recording.sensor_hw,
+                         keep=n * per + 2 * chunk)
+    seconds = {"stacking": 0.0, "flow": 0.0, "network": 0.0}
+    paths, times = [], []
+    total = len(recording.frames) if plan.at == "frames" else None
+    bar = tqdm(total=total, disable=not show_progress, unit="frame", desc="reconstruct")
+    for t, k in output_times(plan, recording, window):
+        start = time.perf_counter()
+        anchor = window.index_after(t)
+        events, first = window.slice(anchor - (half + 1) * per, anchor + half * per)
+        stacks = np.stack([s.image for s in stack_sequence(events, model.stacks,
+                                                           anchor - first, n)])
+        window.forget(first)
+        seconds["stacking"] += time.perf_counter() - start
+        aps = recording.frames.intensity[k] if k is not None else None
+        image, timing = model.run(stacks, aps)
+        for key, v in timing.items():
+            seconds[key] += v
+        path = out / f"frame_{len(paths):06d}.png"
+        cv2.imwrite(str(path), np.round(image * 255).astype(np.uint8))
+        paths.append(path)
+        times.append(t)
+        bar.update(1)
+        if limit is not None and len(paths) >= limit:
+            break
+    bar.close()
+    (out / "timestamps.txt").write_text("".join(f"{i} {t * 1e-9:.9f}\n"
+                                                for i, t in enumerate(times)))
+    if mp4 and paths:
+        write_mp4(paths, out / "video.mp4", times)
+    return ReconstructResult(paths, times, seconds)
+
+
+def write_mp4(paths: list[Path], target: Path, times_ns: list[int]) -> Path:
+    """An MP4 of the frames at their median output rate (OpenCV's encoder)."""
+    first = cv2.imread(str(paths[0]), cv2.IMREAD_GRAYSCALE)
+    gaps = np.diff(times_ns)
+    fps = float(np.clip(1e9 / np.median(gaps), 1, 240)) if len(gaps) else 10.0
+    writer = cv2.VideoWriter(str(target), cv2.VideoWriter_fourcc(*"mp4v"), fps,
+                             (first.shape[1], first.shape[0]), isColor=False)
+    if not writer.isOpened():
+        raise ValueError(f"{target}: OpenCV cannot write MP4 here")
+    for p in paths:
+        writer.write(cv2.imread(str(p), cv2.IMREAD_GRAYSCALE))
+    writer.release()
+    return target

@@ -1,0 +1,119 @@
+"""Reconstruction from recordings: streaming equals in-memory, memory stays bounded."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from esim_lite.events import Events
+from model.cli import reconstruct_main
+from model.reconstruct import EventWindow, Reconstructor, plan_outputs, reconstruct
+from model.recording import open_recording
+from tests.conftest import REAL_EVENTS
+from tests.model.test_recording import events, write_hdf5
+
+
+def shard(tiny_shards):
+    return sorted(tiny_shards.glob("shard_*.h5"))[0]
+
+
+def test_streamed_output_equals_in_memory_output(tiny_shards, tiny_checkpoint, tmp_path):
+    rec = open_recording(shard(tiny_shards), sequence="seq_000001")
+    model = Reconstructor.load(tiny_checkpoint, rec.sensor_hw, device="cpu")
+    plan = plan_outputs(rec, model.stacks)
+    assert plan.at == "frames"
+    a = reconstruct(rec, model, tmp_path / "a", plan, show_progress=False, chunk=37)
+    b = reconstruct(rec, model, tmp_path / "b", plan, show_progress=False, chunk=10**7)
+    assert len(a.frames) == len(rec.frames) == 5
+    for pa, pb in zip(a.frames, b.frames):
+        ia, ib = cv2.imread(str(pa), 0), cv2.imread(str(pb), 0)
+        assert ia.shape == (96, 128)  # x2 of the 64x48 sensor
+        np.testing.assert_array_equal(ia, ib)
+    times = (tmp_path / "a" / "timestamps.txt").read_text().split("\n")
+    assert len([t for t in times if t]) == 5
+
+
+def test_the_event_window_forgets_what_is_no_longer_needed():
+    hw = (10, 10)
+    total = 200_000
+    chunks = (Events(np.zeros(1000, np.int16), np.zeros(1000, np.int16),
+                     np.arange(k, k + 1000, dtype=np.int64), np.ones(1000, np.int8), hw)
+              for k in range(0, total, 1000))
+    window, biggest = EventWindow(chunks, hw), 0
+    for anchor in range(5000, total, 3000):
+        ev, first = window.slice(anchor - 4000, anchor + 2000)
+        assert first == anchor - 4000 and ev.t_ns[0] == anchor - 4000
+        window.forget(anchor - 4000)
+        biggest = max(biggest, len(window.buf))
+    assert biggest <= 8000  # never the whole stream
+
+
+def test_outputs_every_stack_or_at_a_rate(tiny_shards, tiny_checkpoint, tmp_path):
+    path = tmp_path / "e.h5"
+    write_hdf5(path, events(n=20000, hw=(48, 64)), with_frames=False)
+    rec = open_recording(path)
+    model = Reconstructor.load(tiny_checkpoint, rec.sensor_hw, device="cpu")
+    plan = plan_outputs(rec, model.stacks)
+    assert plan.at == "events"
+    r = reconstruct(rec, model, tmp_path / "ev", plan, show_progress=False, mp4=True)
+    assert len(r.frames) == 20000 // model.stacks.events_per_stack
+    assert (tmp_path / "ev" / "video.mp4").stat().st_size > 0
+    r = reconstruct(rec, model, tmp_path / "rate", plan_outputs(rec, model.stacks, "rate", 1.0),
+                    show_progress=False)
+    assert len(r.frames) == 2  # 2 s of events at 1 Hz
+    with pytest.raises(ValueError, match="no APS frames"):
+        plan_outputs(rec, model.stacks, "frames")
+
+
+def test_modes_must_match_the_checkpoint(tiny_checkpoint):
+    with pytest.raises(ValueError, match="cannot run in mode 'complementary'"):
+        Reconstructor.load(tiny_checkpoint, (48, 64), mode="complementary")
+
+
+def test_stacks_scale_with_the_sensor_area(tiny_checkpoint):
+    small = Reconstructor.load(tiny_checkpoint, (48, 64)).stacks.events_per_channel
+    big = Reconstructor.load(tiny_checkpoint, (96, 128)).stacks.events_per_channel
+    assert small == 100 and big == 400  # trained at 64x48 with 100 per channel
+
+
+@pytest.mark.skipif(not (REAL_EVENTS / "ecd_snippets").is_dir(),
+                    reason="real recordings not present")
+def test_reconstruct_a_real_snippet(tiny_checkpoint, tmp_path, capsys):
+    snippet = REAL_EVENTS / "ecd_snippets" / "shapes_rotation"
+    assert reconstruct_main([str(snippet), "--checkpoint", str(tiny_checkpoint), "--out",
+                             str(tmp_path), "--sensor-size", "240x180", "--no-progress"]) == 0
+    assert "240x180 sensor" in capsys.readouterr().out
+    frames = sorted(tmp_path.glob("frame_*.png"))
+    assert frames and cv2.imread(str(frames[0]), 0).shape == (360, 480)
+
+
+def test_cli_errors(tiny_checkpoint, tmp_path, capsys):
+    bad = tmp_path / "events.txt"
+    bad.write_text("1.0 1 1 1\n0.5 1 1 0\n")
+    assert reconstruct_main([str(bad), "--checkpoint", str(tiny_checkpoint), "--out",
+                             str(tmp_path / "o"), "--sensor-size", "10x10",
+                             "--no-progress"]) == 2
+    assert "timestamps go back in time" in capsys.readouterr().err
+    assert reconstruct_main([str(bad), "--checkpoint", str(tiny_checkpoint), "--out",
+                             str(tmp_path / "o"), "--sensor-size", "ten"]) == 2
+    assert "--sensor-size must look like" in capsys.readouterr().err
+
+
+def test_reading_far_ahead_keeps_memory_bounded_unless_pinned():
+    hw = (10, 10)
+
+    def stream():
+        return (Events(np.zeros(1000, np.int16), np.zeros(1000, np.int16),
+                       np.arange(k, k + 1000, dtype=np.int64), np.ones(1000, np.int8), hw)
+                for k in range(0, 1_000_000, 1000))
+
+    window = EventWindow(stream(), hw, keep=5000)
+    assert window.index_after(900_000) == 900_001
+    assert len(window.buf) <= 6000  # not 900,000
+    ev, first = window.slice(900_001 - 3000, 900_001)
+    assert first == 897_001 and len(ev) == 3000
+    pinned = EventWindow(stream(), hw, keep=5000)
+    pinned.pin = 100
+    pinned.index_after(50_000)
+    assert pinned.offset == 100  # what the caller still needs stays

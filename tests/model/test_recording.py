@@ -1,0 +1,162 @@
+"""Event files in: every format read back exactly, bad files named with their problem."""
+
+from __future__ import annotations
+
+import h5py
+import numpy as np
+import pytest
+
+from esim_lite.events import Events
+from model.recording import open_recording
+from tests.conftest import REAL_EVENTS
+
+ECD = REAL_EVENTS / "ecd_snippets"
+
+
+def events(n=5000, hw=(30, 40), seed=0) -> Events:
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.integers(1_000_000, 3_000_000, n)) * 1000  # whole microseconds
+    return Events(rng.integers(0, hw[1], n).astype(np.int16),
+                  rng.integers(0, hw[0], n).astype(np.int16), t.astype(np.int64),
+                  rng.choice(np.array([-1, 1], np.int8), n), hw)
+
+
+def frames(hw=(30, 40), n=3):
+    rng = np.random.default_rng(1)
+    imgs = (rng.random((n,) + hw) * 255).astype(np.uint8)
+    return imgs, [1_500_000_000 + 400_000_000 * k for k in range(n)]
+
+
+def write_text(folder, ev, with_frames=True):
+    import cv2
+
+    folder.mkdir()
+    lines = [f"{t // 10**9}.{t % 10**9:09d} {x} {y} {int(p > 0)}"
+             for t, x, y, p in zip(ev.t_ns, ev.x, ev.y, ev.p)]
+    (folder / "events.txt").write_text("\n".join(lines) + "\n")
+    if with_frames:
+        (folder / "images").mkdir()
+        imgs, ts = frames()
+        rows = []
+        for k, (img, t) in enumerate(zip(imgs, ts)):
+            cv2.imwrite(str(folder / "images" / f"frame_{k:08d}.png"), img)
+            rows.append(f"{t / 1e9:.9f} images/frame_{k:08d}.png")
+        (folder / "images.txt").write_text("\n".join(rows) + "\n")
+
+
+def write_hdf5(path, ev, with_frames=True):
+    with h5py.File(path, "w") as f:
+        f.attrs["sensor_resolution"] = list(ev.sensor_hw)
+        f.create_dataset("events/xs", data=ev.x)
+        f.create_dataset("events/ys", data=ev.y)
+        f.create_dataset("events/ts", data=ev.t_ns * 1e-9)
+        f.create_dataset("events/ps", data=(ev.p > 0).astype(np.uint8))
+        if with_frames:
+            imgs, ts = frames(ev.sensor_hw)
+            for k, (img, t) in enumerate(zip(imgs, ts)):
+                ds = f.create_dataset(f"images/image{k:09d}", data=img)
+                ds.attrs["timestamp"] = t * 1e-9
+
+
+def write_aedat4(path, ev):
+    import dv_processing as dv
+
+    cfg = dv.io.MonoCameraWriter.Config("TEST")
+    cfg.addEventStream((ev.sensor_hw[1], ev.sensor_hw[0]))
+    cfg.addFrameStream((ev.sensor_hw[1], ev.sensor_hw[0]))
+    writer = dv.io.MonoCameraWriter(str(path), cfg)
+    store = dv.EventStore()
+    for t, x, y, p in zip(ev.t_ns // 1000, ev.x, ev.y, ev.p):
+        store.push_back(int(t), int(x), int(y), bool(p > 0))
+    writer.writeEvents(store)
+    imgs, ts = frames(ev.sensor_hw)
+    for img, t in zip(imgs, ts):
+        writer.writeFrame(dv.Frame(t // 1000, img))
+    del writer
+
+
+def write_raw(path, ev):
+    import faery
+
+    arr = np.zeros(len(ev), faery.EVENTS_DTYPE)
+    arr["t"], arr["x"], arr["y"], arr["on"] = ev.t_ns // 1000, ev.x, ev.y, ev.p > 0
+    faery.events_stream_from_array(arr, (ev.sensor_hw[1], ev.sensor_hw[0])).to_file(
+        path, version="evt3", zero_t0=False)
+
+
+@pytest.mark.parametrize("kind", ["text", "hdf5", "aedat4", "raw"])
+def test_every_format_reads_back_exactly(tmp_path, kind):
+    ev = events()
+    path = {"text": tmp_path / "ecd", "hdf5": tmp_path / "e.h5", "aedat4": tmp_path / "e.aedat4",
+            "raw": tmp_path / "e.raw"}[kind]
+    {"text": write_text, "hdf5": write_hdf5, "aedat4": write_aedat4, "raw": write_raw}[kind](
+        path, ev)
+    rec = open_recording(path)
+    assert rec.sensor_hw == (30, 40)
+    back = Events.concatenate(list(rec.events(chunk=777)), rec.sensor_hw)
+    for f in ("x", "y", "t_ns", "p"):
+        np.testing.assert_array_equal(getattr(back, f), getattr(ev, f), err_msg=f)
+    if kind != "raw":  # Prophesee raw files carry no frames
+        imgs, ts = frames()
+        np.testing.assert_array_equal(rec.frames.t_ns, ts)
+        np.testing.assert_allclose(rec.frames.intensity, imgs / 255.0, atol=1e-6)
+
+
+def test_our_shards_are_recordings(tiny_shards):
+    path = sorted(tiny_shards.glob("shard_*.h5"))[0]
+    rec = open_recording(path, sequence="seq_000001")
+    assert rec.kind == "shard" and rec.sensor_hw == (48, 64) and len(rec.frames) == 5
+    assert len(rec.read_all()) > 100
+    with pytest.raises(ValueError, match="no sequence 'seq_9'"):
+        open_recording(path, sequence="seq_9")
+
+
+@pytest.mark.parametrize("content, problem", [
+    ("1.0 3 4 1\n1.5 3 4 0\n2.0 5", "line 3 is not 't x y p'"),
+    ("1.0 3 4 1\n0.5 3 4 0\n", "timestamps go back in time at event 1"),
+    ("1.0 3 4 1\n1.5 300 4 0\n", "coordinates outside the 40x30 sensor"),
+    ("1.0 3 4 1\n1.5 3 4 7\n", "polarity must be 0/1"),
+    ("", "holds no events"),
+    ("# only a comment\n", "holds no events"),
+])
+def test_bad_text_files_are_named_with_their_problem(tmp_path, content, problem):
+    path = tmp_path / "events.txt"
+    path.write_text(content)
+    with pytest.raises(ValueError, match=problem) as err:
+        open_recording(path, sensor_hw=(30, 40)).read_all()
+    assert str(path) in str(err.value)
+
+
+def test_bad_binary_files(tmp_path):
+    (tmp_path / "t.h5").write_bytes(b"\x89HDF\r\n\x1a\n truncated")
+    with pytest.raises(ValueError, match="t.h5: not a readable HDF5 file"):
+        open_recording(tmp_path / "t.h5")
+    with h5py.File(tmp_path / "n.h5", "w") as f:
+        f.create_dataset("x", data=[1])
+    with pytest.raises(ValueError, match="n.h5: no events/xs"):
+        open_recording(tmp_path / "n.h5")
+    with h5py.File(tmp_path / "c.h5", "w") as f:
+        for k, n in (("xs", 3), ("ys", 3), ("ts", 2), ("ps", 3)):
+            f.create_dataset(f"events/{k}", data=np.zeros(n))
+    with pytest.raises(ValueError, match="different lengths"):
+        open_recording(tmp_path / "c.h5", sensor_hw=(4, 4))
+    (tmp_path / "x.aedat4").write_bytes(b"#!AER-DAT4.0\r\n junk")
+    with pytest.raises(ValueError, match="x.aedat4: not a readable AEDAT4 file"):
+        open_recording(tmp_path / "x.aedat4")
+    (tmp_path / "x.dat2").write_bytes(b"")
+    with pytest.raises(ValueError, match="unknown event file type"):
+        open_recording(tmp_path / "x.dat2")
+    with pytest.raises(FileNotFoundError, match="nope: no such file"):
+        open_recording(tmp_path / "nope")
+
+
+@pytest.mark.skipif(not ECD.is_dir(), reason="real recordings not present")
+def test_event_camera_dataset_snippets():
+    for folder in sorted(ECD.iterdir()):
+        rec = open_recording(folder, sensor_hw=(180, 240))
+        ev = rec.read_all()
+        assert len(ev) == 30_000 and ev.is_sorted() and rec.frames is None
+        first = (folder / "events.txt").read_text().split("\n", 1)[0].split()
+        sec, frac = first[0].split(".")
+        assert ev.t_ns[0] == int(sec) * 10**9 + int(frac.ljust(9, "0"))  # exact nanoseconds
+        assert ev.x[0] == int(first[1]) and ev.p[0] == (1 if first[3] == "1" else -1)
