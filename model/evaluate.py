@@ -315,9 +315,17 @@ def write_tables(rows: list[dict], out: Path, options: EvalOptions) -> None:
     (out / "metrics.md").write_text("\n".join(lines))
 
 
+def _detail_centre(img: np.ndarray) -> tuple[float, float]:
+    """(row, col) as fractions of the size: where the smoothed gradient energy peaks."""
+    gy, gx = np.gradient(img.astype(np.float32))
+    energy = cv2.GaussianBlur(gx * gx + gy * gy, (0, 0), max(img.shape) / 16)
+    y, x = np.unravel_index(int(np.argmax(energy)), energy.shape)
+    return y / img.shape[0], x / img.shape[1]
+
+
 def write_figure(sequences: list[SequenceOutputs], path: Path, scale: int) -> Path:
     """Per sequence, its middle frame: events | HF | ours | ground truth, each with a 4x
-    zoomed crop of the centre."""
+    zoomed crop where the ground truth has the most detail."""
     rows = []
     for seq in sequences:
         k = len(seq.images["ours"]) // 2
@@ -329,10 +337,13 @@ def write_figure(sequences: list[SequenceOutputs], path: Path, scale: int) -> Pa
         if seq.hr_targets is not None:
             base = upsample(base, scale)
         row = [(seq.event_images[k], f"events: {seq.name}")]
+        cy, cx = _detail_centre(target)
         for img, label in ((base, "HF"), (ours, "ours"), (target, "ground truth")):
             img = normalized(img, img, "minmax")[0]
             h, w = img.shape
-            crop = img[h // 2 - h // 8:h // 2 + h // 8, w // 2 - w // 8:w // 2 + w // 8]
+            y0 = int(np.clip(cy * h - h // 8, 0, h - h // 4))
+            x0 = int(np.clip(cx * w - w // 8, 0, w - w // 4))
+            crop = img[y0:y0 + h // 4, x0:x0 + w // 4]
             zoom = cv2.resize(crop, (w, h), interpolation=cv2.INTER_NEAREST)
             row += [(gray_to_rgb(img), label), (gray_to_rgb(zoom), f"{label} (4x zoom)")]
         rows.append(row)

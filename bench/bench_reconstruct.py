@@ -1,0 +1,145 @@
+"""Reconstruction latency per output frame at 240x180, and memory on long recordings.
+
+Run: .venv/bin/python bench/bench_reconstruct.py [--skip-latency] [--skip-memory]
+Latency: full-size E2SRI (random weights; compute does not depend on them) for 3 and 7
+stacks at x2 and x4 on a 240x180 stream of synthetic events, ~7,900 events per stack (the
+paper's density). Reported per output frame and split into stacking (SBN from the event
+window), flow (OpenCV DIS between the central and each side stack) and network (forward
+pass); the paper's Titan Xp figures are network-only (18.5, 19.4, 250.8, 450.9 ms).
+Memory: `reconstruct` as a child process on an event_utils HDF5 file of 1 million and of
+100 million events (written here in chunks), 5 outputs spread over each file with the small
+config; peak RSS from getrusage of the child.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import torch
+
+from esim_lite.events import Events
+from model import checkpoint
+from model.e2sri_arch import E2SRI, NetConfig
+from model.reconstruct import EventWindow, Reconstructor
+from model.stacking import StackConfig, stack_sequence
+
+HW = (180, 240)
+PER_CHANNEL = 2637  # 3 x 2637 = 7,911 events per stack: 3,000 at 128x128 scaled by area
+
+
+def synthetic(n: int, seed: int, t0: int = 0) -> Events:
+    rng = np.random.default_rng(seed)
+    t = t0 + np.sort(rng.integers(0, n * 10_000, n))  # ~100k events/s
+    return Events(rng.integers(0, HW[1], n).astype(np.int16),
+                  rng.integers(0, HW[0], n).astype(np.int16), t.astype(np.int64),
+                  rng.choice(np.array([-1, 1], np.int8), n), HW)
+
+
+def latency(scale: int, n_stacks: int) -> dict[str, float]:
+    torch.manual_seed(0)
+    net = E2SRI(NetConfig(scale=scale, n_stacks=n_stacks)).eval()
+    stacks_cfg = StackConfig(events_per_channel=PER_CHANNEL)
+    model = Reconstructor(net, None, stacks_cfg, torch.device("cpu"))
+    per, half = stacks_cfg.events_per_stack, n_stacks // 2
+    events = synthetic((n_stacks + 2) * per, 1)
+    anchor = (half + 1) * per
+    with torch.inference_mode():  # warm-up at a small size (allocator, kernels)
+        net(torch.zeros(1, n_stacks, 3, 32, 32), torch.zeros(1, 3, 32, 32),
+            torch.zeros(1, n_stacks, 2, 32, 32))
+    start = time.perf_counter()
+    window = EventWindow(iter([events]), HW)
+    ev, first = window.slice(anchor - (half + 1) * per, anchor + half * per)
+    stacks = np.stack([s.image for s in stack_sequence(ev, stacks_cfg, anchor - first,
+                                                       n_stacks)])
+    stacking = time.perf_counter() - start
+    _, timing = model.run(stacks, None)
+    return {"stacking": stacking, **timing}
+
+
+def write_h5(path: Path, n: int, chunk: int = 5_000_000) -> None:
+    with h5py.File(path, "w") as f:
+        f.attrs["sensor_resolution"] = list(HW)
+        ds = {k: f.create_dataset(f"events/{k}", (0,), dt, maxshape=(None,), chunks=(1 << 16,))
+              for k, dt in (("xs", np.int16), ("ys", np.int16), ("ts", np.float64),
+                            ("ps", np.uint8))}
+        for start in range(0, n, chunk):
+            ev = synthetic(min(chunk, n - start), start, t0=start * 10_000)
+            for k, values in (("xs", ev.x), ("ys", ev.y), ("ts", ev.t_ns * 1e-9),
+                              ("ps", (ev.p > 0).astype(np.uint8))):
+                d = ds[k]
+                d.resize(d.shape[0] + len(values), axis=0)
+                d[-len(values):] = values
+
+
+def small_checkpoint(path: Path) -> Path:
+    from esim_lite.dataconf import load_yaml, to_yaml
+    from model.config import TrainConfig
+
+    cfg = load_yaml(TrainConfig, Path(__file__).resolve().parents[1] / "configs" /
+                    "train_small.yaml")
+    net = E2SRI(cfg.model)
+    return checkpoint.save(path, model=net.state_dict(), config=to_yaml(cfg),
+                           net=checkpoint.net_args(net), sensor_hw=(128, 128))
+
+
+def peak_rss(h5: Path, ckpt: Path, out: Path, rate_hz: float) -> tuple[float, float, float]:
+    """(peak RSS MB of the child itself, seconds, time of the last output in s)."""
+    code = ("import resource, sys; from model.cli import reconstruct_main; "
+            f"rc = reconstruct_main([{str(h5)!r}, '--checkpoint', {str(ckpt)!r}, '--out', "
+            f"{str(out)!r}, '--at', 'rate', '--rate', {str(rate_hz)!r}, '--limit', '5', "
+            "'--no-progress']); "
+            "print(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss, file=sys.stderr); "
+            "sys.exit(rc)")
+    start = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True,
+                          text=True)
+    seconds = time.perf_counter() - start
+    rss_kb = int(proc.stderr.strip().splitlines()[-1])
+    last = float((out / "timestamps.txt").read_text().split()[-1])
+    return rss_kb / 1024, seconds, last
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__)
+    parser.add_argument("--skip-latency", action="store_true")
+    parser.add_argument("--skip-memory", action="store_true")
+    args = parser.parse_args(argv)
+    torch.set_num_threads(2)
+    print(f"# {' '.join(['python'] + sys.argv)}; torch {torch.__version__}, CPU, 2 threads")
+    if not args.skip_latency:
+        print("| stacks | scale | stacking ms | flow ms | network ms | total ms | paper (Titan Xp,"
+              " network) ms |")
+        print("|---|---|---|---|---|---|---|")
+        paper = {(3, 2): 18.5, (3, 4): 19.4, (7, 2): 250.8, (7, 4): 450.9}
+        for n in (3, 7):
+            for s in (2, 4):
+                t = latency(s, n)
+                print(f"| {n} | x{s} | {1e3 * t['stacking']:.0f} | {1e3 * t['flow']:.0f} | "
+                      f"{1e3 * t['network']:.0f} | {1e3 * sum(t.values()):.0f} | "
+                      f"{paper[(n, s)]} |", flush=True)
+    if not args.skip_memory:
+        print("\n| events in file | file MB | recording s | last output at s | peak RSS MB | "
+              "seconds |")
+        print("|---|---|---|---|---|---|")
+        with tempfile.TemporaryDirectory() as tmp:
+            ckpt = small_checkpoint(Path(tmp) / "small.pt")
+            for n in (1_000_000, 100_000_000):
+                h5 = Path(tmp) / f"e{n}.h5"
+                write_h5(h5, n)
+                duration_s = n * 10_000 * 1e-9
+                rss, sec, last = peak_rss(h5, ckpt, Path(tmp) / f"out{n}", 4.5 / duration_s)
+                print(f"| {n:,} | {h5.stat().st_size / 1e6:.0f} | {duration_s:.0f} | "
+                      f"{last:.0f} | {rss:.0f} | {sec:.0f} |", flush=True)
+                h5.unlink()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
