@@ -92,6 +92,8 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
                    help="default: the model's, scaled by the sensor area")
     p.add_argument("--limit", type=int, help="stop after this many frames")
     p.add_argument("--mp4", action="store_true", help="also write video.mp4")
+    p.add_argument("--temporal", type=float, metavar="WEIGHT",
+                   help="blind temporal-consistency post-process (e.g. 0.6)")
     p.add_argument("--device", help="cpu or cuda (default: cuda if present)")
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
@@ -105,7 +107,7 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
                                    args.events_per_stack, args.device)
         plan = plan_outputs(rec, model.stacks, args.at, args.rate, args.every)
         result = reconstruct(rec, model, args.out, plan, args.mp4, not args.no_progress,
-                             args.limit)
+                             args.limit, temporal=args.temporal)
     except (ConfigError, FileNotFoundError, ValueError) as exc:
         print(f"reconstruct: error: {exc}", file=sys.stderr)
         return 2

@@ -125,16 +125,22 @@ def warp_error(outputs: list[np.ndarray], references: list[np.ndarray]) -> float
     return 1e3 * float(np.mean(errors)) if errors else float("nan")
 
 
+def consistency_step(previous_output: np.ndarray, previous_result: np.ndarray,
+                     output: np.ndarray, weight: float) -> np.ndarray:
+    """One step of the blind temporal post-process: ``output`` blended with the previous
+    result warped onto it (flow between the two raw outputs), occluded pixels untouched."""
+    fw = _flow(output, previous_output)
+    bw = _flow(previous_output, output)
+    mask = non_occluded(fw, bw)
+    prev = warp(previous_result, fw)
+    return np.where(mask, weight * prev + (1 - weight) * output, output).astype(np.float32)
+
+
 def temporally_consistent(outputs: list[np.ndarray], weight: float) -> list[np.ndarray]:
-    """Blind post-process: blend each output with the previous result warped onto it."""
+    """The blind post-process over a whole sequence (recursive: streamable)."""
     result = [outputs[0]]
     for k in range(1, len(outputs)):
-        fw = _flow(outputs[k], outputs[k - 1])
-        bw = _flow(outputs[k - 1], outputs[k])
-        mask = non_occluded(fw, bw)
-        prev = warp(result[-1], fw)
-        result.append(np.where(mask, weight * prev + (1 - weight) * outputs[k], outputs[k])
-                      .astype(np.float32))
+        result.append(consistency_step(outputs[k - 1], result[-1], outputs[k], weight))
     return result
 
 

@@ -208,8 +208,14 @@ class ReconstructResult:
 
 def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
                 plan: OutputPlan, mp4: bool = False, show_progress: bool = True,
-                limit: int | None = None, chunk: int = 1_000_000) -> ReconstructResult:
-    """Write ``frame_XXXXXX.png`` (and ``timestamps.txt``, ``video.mp4``) into ``out``."""
+                limit: int | None = None, chunk: int = 1_000_000,
+                temporal: float | None = None) -> ReconstructResult:
+    """Write ``frame_XXXXXX.png`` (and ``timestamps.txt``, ``video.mp4``) into ``out``.
+
+    ``temporal``: weight of the blind temporal-consistency post-process (None: off); it
+    needs only the previous frame, so memory stays bounded."""
+    from model.evaluate import consistency_step
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     n = model.net.config.n_stacks
@@ -217,7 +223,7 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
     window = EventWindow(recording.events(chunk), recording.sensor_hw,
                          keep=n * per + 2 * chunk)
     seconds = {"stacking": 0.0, "flow": 0.0, "network": 0.0}
-    paths, times = [], []
+    paths, times, previous = [], [], None
     total = len(recording.frames) if plan.at == "frames" else None
     bar = tqdm(total=total, disable=not show_progress, unit="frame", desc="reconstruct")
     for t, k in output_times(plan, recording, window):
@@ -232,6 +238,11 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
         image, timing = model.run(stacks, aps)
         for key, v in timing.items():
             seconds[key] += v
+        if temporal is not None:
+            raw = image
+            if previous is not None:
+                image = consistency_step(previous[0], previous[1], raw, temporal)
+            previous = (raw, image)
         path = out / f"frame_{len(paths):06d}.png"
         cv2.imwrite(str(path), np.round(image * 255).astype(np.uint8))
         paths.append(path)

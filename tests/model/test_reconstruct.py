@@ -117,3 +117,22 @@ def test_reading_far_ahead_keeps_memory_bounded_unless_pinned():
     pinned.pin = 100
     pinned.index_after(50_000)
     assert pinned.offset == 100  # what the caller still needs stays
+
+
+def test_complementary_and_duo_pass_reconstruction(tiny_shards, tiny_checkpoint, tmp_path):
+    from model.train import train
+    from tests.model.conftest import tiny_config
+
+    train(tiny_config("model.central=aps", "run.max_steps=1"), tiny_shards, tmp_path / "comp",
+          show_progress=False)
+    train(tiny_config("model.central=first_pass", "run.max_steps=1",
+                      f"run.first_pass={tiny_checkpoint}"), tiny_shards, tmp_path / "duo",
+          show_progress=False)
+    rec = open_recording(shard(tiny_shards), sequence="seq_000001")
+    for mode, ckpt in (("complementary", tmp_path / "comp" / "last.pt"),
+                       ("duo-pass", tmp_path / "duo" / "last.pt")):
+        model = Reconstructor.load(ckpt, rec.sensor_hw, mode, device="cpu")
+        r = reconstruct(rec, model, tmp_path / mode, plan_outputs(rec, model.stacks),
+                        show_progress=False, temporal=0.6)
+        assert len(r.frames) == 5
+        assert cv2.imread(str(r.frames[-1]), 0).shape == (96, 128)
