@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import time
 from pathlib import Path
 
 import pytest
@@ -72,15 +71,17 @@ def test_input_checks_name_the_shapes():
         NetConfig(n_stacks=4)
 
 
-def test_a_tiny_model_overfits_one_sample_within_a_minute(tiny_shards):
+def test_a_tiny_model_overfits_one_sample(tiny_shards):
+    # A step budget, not a wall-clock one: on a loaded 2-core machine a minute bought only 106
+    # steps; here the criterion is met at step 133, so 300 steps leave room for platform numerics.
     torch.manual_seed(0)
     data = DataConfig(stacks=StackConfig(events_per_channel=100), crop=32)
     refs, _ = index_samples(find_shards(tiny_shards), data, 3, 2)
     sample = {k: v[None] for k, v in ShardSamples(refs, data, 3, 2, True)[0].items()}
     net = E2SRI(NetConfig(base_channels=16, hr_channels=8, c_blocks=1, blocks=1))
     opt = torch.optim.Adam(net.parameters(), lr=3e-3)
-    start, losses = time.perf_counter(), []
-    while time.perf_counter() - start < 60:
+    losses = []
+    for _ in range(300):
         out = net(sample["stacks"], sample["stacks"][:, 1], sample["flows"])
         loss = (out - sample["hr"]).abs().mean()
         opt.zero_grad()
