@@ -14,11 +14,9 @@ the target, so every method is scored on structure with its best intensity mappi
 it amplifies a flat output's small variations: on a held-out moon sequence it cut all
 event-only methods from ~25 dB to 8-11 dB); ``none`` compares raw values.
 
-Temporal stability (the paper's Table 6): ``E_warp`` between consecutive outputs, the
-second warped onto the first with the flow of the ground-truth frames (OpenCV DIS), over
-the non-occluded pixels (forward-backward check of Ruder et al. 2016), in units of 1e-3.
-``ours+tc`` is a blind temporal-consistency post-process of our outputs (recursive blending
-along the flow between consecutive outputs, occlusions excluded).
+Temporal stability (the paper's Table 6): ``E_warp`` between consecutive outputs with the
+flow of the ground-truth frames; ``ours+tc`` is our outputs after the blind post-process
+(both in :mod:`model.temporal`).
 """
 
 from __future__ import annotations
@@ -43,6 +41,7 @@ from model.metrics import mse, psnr, ssim
 from model.reconstruct import EventWindow, Reconstructor
 from model.recording import Recording, open_recording
 from model.stacking import stack_sequence
+from model.temporal import temporally_consistent, warp_error
 
 log = logging.getLogger(__name__)
 BASELINES = ("hf", "direct", "complementary")
@@ -85,63 +84,6 @@ def frame_metrics(pred: np.ndarray, gt: np.ndarray, lpips_net: LPIPS | None) -> 
         with torch.inference_mode():
             out["lpips"] = float(lpips_net(p, g))
     return out
-
-
-def _flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
-    to8 = lambda im: np.round(im.clip(0, 1) * 255).astype(np.uint8)  # noqa: E731
-    return dis.calc(to8(a), to8(b), None)
-
-
-def warp(img: np.ndarray, flow: np.ndarray) -> np.ndarray:
-    """``img`` sampled at ``x + flow(x)`` (bilinear): brings frame t+1 back onto frame t."""
-    h, w = img.shape
-    gx, gy = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-    return cv2.remap(img, gx + flow[..., 0], gy + flow[..., 1], cv2.INTER_LINEAR,
-                     borderMode=cv2.BORDER_REPLICATE)
-
-
-def non_occluded(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
-    """Ruder et al.'s forward-backward consistency mask (True where trustworthy)."""
-    back = np.stack([warp(backward[..., 0], forward), warp(backward[..., 1], forward)], -1)
-    h, w = forward.shape[:2]
-    gx, gy = np.meshgrid(np.arange(w), np.arange(h))
-    inside = (gx + forward[..., 0] >= 0) & (gx + forward[..., 0] <= w - 1) & \
-        (gy + forward[..., 1] >= 0) & (gy + forward[..., 1] <= h - 1)
-    err = np.sum((forward + back) ** 2, -1)
-    return inside & (err <= 0.01 * (np.sum(forward**2, -1) + np.sum(back**2, -1)) + 0.5)
-
-
-def warp_error(outputs: list[np.ndarray], references: list[np.ndarray]) -> float:
-    """Mean E_warp (x1e-3) over consecutive pairs; flow and mask from ``references``."""
-    errors = []
-    for k in range(len(outputs) - 1):
-        fw = _flow(references[k], references[k + 1])
-        bw = _flow(references[k + 1], references[k])
-        mask = non_occluded(fw, bw)
-        if mask.any():
-            diff = outputs[k] - warp(outputs[k + 1], fw)
-            errors.append(float(np.mean(diff[mask] ** 2)))
-    return 1e3 * float(np.mean(errors)) if errors else float("nan")
-
-
-def consistency_step(previous_output: np.ndarray, previous_result: np.ndarray,
-                     output: np.ndarray, weight: float) -> np.ndarray:
-    """One step of the blind temporal post-process: ``output`` blended with the previous
-    result warped onto it (flow between the two raw outputs), occluded pixels untouched."""
-    fw = _flow(output, previous_output)
-    bw = _flow(previous_output, output)
-    mask = non_occluded(fw, bw)
-    prev = warp(previous_result, fw)
-    return np.where(mask, weight * prev + (1 - weight) * output, output).astype(np.float32)
-
-
-def temporally_consistent(outputs: list[np.ndarray], weight: float) -> list[np.ndarray]:
-    """The blind post-process over a whole sequence (recursive: streamable)."""
-    result = [outputs[0]]
-    for k in range(1, len(outputs)):
-        result.append(consistency_step(outputs[k - 1], result[-1], outputs[k], weight))
-    return result
 
 
 @dataclass
@@ -245,6 +187,13 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
     state = checkpoint.load(ckpt)
     cfg = checkpoint.config_of(state, str(ckpt))
     mode = {"stack": "main", "aps": "complementary", "first_pass": "duo-pass"}[cfg.model.central]
+    models: dict[tuple[int, int], Reconstructor] = {}
+
+    def model_for(hw: tuple[int, int]) -> Reconstructor:  # the checkpoint is read once
+        if hw not in models:
+            models[hw] = Reconstructor.from_state(state, str(ckpt), hw, mode, first_pass)
+        return models[hw]
+
     lpips_net = LPIPS()
     sequences: list[SequenceOutputs] = []
     if data is not None:
@@ -258,7 +207,7 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
         for (path, seq), frames in sorted(by_seq.items()):
             frames = frames[::options.every][:options.max_frames]
             rec = open_recording(path, sequence=seq)
-            model = Reconstructor.load(ckpt, rec.sensor_hw, mode, first_pass)
+            model = model_for(rec.sensor_hw)
             with ShardReader(path) as reader:
                 hr = [reader.frame(seq, f"hr_x{cfg.model.scale}", k) for k in frames]
             sequences.append(run_sequence(rec, model, frames, hr, options,
@@ -267,7 +216,7 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
         rec = open_recording(path)
         if rec.frames is None:
             raise ValueError(f"{path}: no APS frames to evaluate against")
-        model = Reconstructor.load(ckpt, rec.sensor_hw, mode, first_pass)
+        model = model_for(rec.sensor_hw)
         ids = list(range(1, len(rec.frames)))[::options.every][:options.max_frames]
         sequences.append(run_sequence(rec, model, ids, None, options, str(path)))
     if not sequences:

@@ -19,7 +19,7 @@ from torch import nn
 
 from model.blocks import conv
 
-_DIS: dict[int, cv2.DISOpticalFlow] = {}
+_DIS: dict[int, cv2.DISOpticalFlow] = {}  # one instance per preset, made on first use
 
 
 def stack_to_gray(stack: np.ndarray) -> np.ndarray:
@@ -28,12 +28,14 @@ def stack_to_gray(stack: np.ndarray) -> np.ndarray:
 
 
 def classical_flow(a: np.ndarray, b: np.ndarray,
-                   method: Literal["dis", "farneback"] = "dis") -> np.ndarray:
-    """float32[H, W, 2] flow (dx, dy) in pixels from gray image ``a`` to ``b`` (uint8)."""
+                   method: Literal["dis", "farneback"] = "dis",
+                   preset: int = cv2.DISOPTICAL_FLOW_PRESET_FAST) -> np.ndarray:
+    """float32[H, W, 2] flow (dx, dy) in pixels from gray image ``a`` to ``b`` (uint8);
+    ``preset`` is DIS's speed/quality preset."""
     if method == "dis":
-        dis = _DIS.get(id(cv2))
+        dis = _DIS.get(preset)
         if dis is None:
-            dis = _DIS[id(cv2)] = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_FAST)
+            dis = _DIS[preset] = cv2.DISOpticalFlow_create(preset)
         return dis.calc(a, b, None)
     if method == "farneback":
         return cv2.calcOpticalFlowFarneback(a, b, None, 0.5, 3, 9, 3, 5, 1.1, 0)

@@ -33,6 +33,7 @@ from model.e2sri_arch import E2SRI
 from model.flow import stack_flows
 from model.recording import Recording
 from model.stacking import StackConfig, stack_sequence
+from model.temporal import consistency_step
 
 log = logging.getLogger(__name__)
 Mode = Literal["main", "complementary", "duo-pass"]
@@ -103,9 +104,18 @@ class Reconstructor:
     def load(cls, ckpt: str | Path, sensor_hw: tuple[int, int], mode: Mode = "main",
              first_pass: str | Path | None = None, events_per_stack: int | None = None,
              device: str | None = None) -> Reconstructor:
+        """Read ``ckpt`` and prepare it for a ``sensor_hw`` sensor (see :meth:`from_state`)."""
+        return cls.from_state(checkpoint.load(ckpt), str(ckpt), sensor_hw, mode, first_pass,
+                              events_per_stack, device)
+
+    @classmethod
+    def from_state(cls, state: dict, ckpt: str, sensor_hw: tuple[int, int],
+                   mode: Mode = "main", first_pass: str | Path | None = None,
+                   events_per_stack: int | None = None, device: str | None = None
+                   ) -> Reconstructor:
+        """From an already loaded checkpoint ``state`` (``ckpt`` names it in errors)."""
         dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
-        state = checkpoint.load(ckpt)
-        net = checkpoint.model_from(state, dev, str(ckpt))
+        net = checkpoint.model_from(state, dev, ckpt)
         if net.config.central != _CENTRAL[mode]:
             raise ValueError(f"{ckpt}: a model with central input {net.config.central!r} "
                              f"cannot run in mode {mode!r} (needs {_CENTRAL[mode]!r})")
@@ -117,7 +127,7 @@ class Reconstructor:
             if not path:
                 raise ValueError("duo-pass needs --first-pass (a main model checkpoint)")
             first = checkpoint.load_model(path, dev)
-        trained = checkpoint.config_of(state, str(ckpt)).data.stacks
+        trained = checkpoint.config_of(state, ckpt).data.stacks
         trained_hw = tuple(state.get("sensor_hw", (128, 128)))
         if events_per_stack is None:
             area = sensor_hw[0] * sensor_hw[1] / (trained_hw[0] * trained_hw[1])
@@ -214,8 +224,6 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
 
     ``temporal``: weight of the blind temporal-consistency post-process (None: off); it
     needs only the previous frame, so memory stays bounded."""
-    from model.evaluate import consistency_step
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     n = model.net.config.n_stacks
