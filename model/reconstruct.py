@@ -87,8 +87,9 @@ class EventWindow:
 
     def forget(self, index: int) -> None:
         if index > self.offset:
-            self.buf = self.buf.slice(min(index, self.end) - self.offset, len(self.buf))
-            self.offset = min(index, self.end)
+            new = min(index, self.end)  # before the buffer shrinks: ``end`` depends on it
+            self.buf = self.buf.slice(new - self.offset, len(self.buf))
+            self.offset = new
 
 
 @dataclass(frozen=True, eq=False)

@@ -136,3 +136,15 @@ def test_complementary_and_duo_pass_reconstruction(tiny_shards, tiny_checkpoint,
                         show_progress=False, temporal=0.6)
         assert len(r.frames) == 5
         assert cv2.imread(str(r.frames[-1]), 0).shape == (96, 128)
+
+
+def test_forgetting_most_of_the_window_keeps_global_indices():
+    hw = (4, 4)
+    ev = Events(np.zeros(10_000, np.int16), np.zeros(10_000, np.int16),
+                np.arange(10_000, dtype=np.int64) * 10, np.ones(10_000, np.int8), hw)
+    window = EventWindow(iter([ev]), hw)
+    assert window.index_after(0) == 1
+    window.forget(9_000)  # more than half of what it holds
+    assert window.offset == 9_000 and window.index_after(95_000) == 9_501
+    got, first = window.slice(9_500, 9_600)
+    assert first == 9_500 and got.t_ns[0] == 95_000
