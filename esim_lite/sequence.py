@@ -82,19 +82,17 @@ class FrameSchedule:
     def due(self, batch: Events, t_ns: int) -> list[int]:
         """Frame times (ns) falling in the step that produced ``batch`` and ended at ``t_ns``."""
         cfg, times = self.config, []
-        if cfg.count is not None and self.n_frames >= cfg.count:
-            self.events_seen += len(batch)
-            return times
+        room = np.inf if cfg.count is None else cfg.count - self.n_frames
         if cfg.mode == "rate":
-            while self._next < len(self.rate_times) and self.rate_times[self._next] <= t_ns:
+            while len(times) < room and self._next < len(self.rate_times) and \
+                    self.rate_times[self._next] <= t_ns:
                 ft = int(self.rate_times[self._next])
                 times.append(ft)
                 self._next += 1
                 self.events_at_last_frame = self.events_seen + int(
                     np.searchsorted(batch.t_ns, ft, side="right"))
         else:
-            while self._next <= self.events_seen + len(batch) and (
-                    cfg.count is None or self.n_frames + len(times) < cfg.count):
+            while len(times) < room and self._next <= self.events_seen + len(batch):
                 times.append(int(batch.t_ns[self._next - self.events_seen - 1]))
                 self.events_at_last_frame = self._next
                 self._next += cfg.every_events

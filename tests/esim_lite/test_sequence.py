@@ -6,9 +6,10 @@ import numpy as np
 import pytest
 
 from esim_lite.config import CameraConfig, FrameConfig, SimulationConfig
+from esim_lite.events import Events
 from esim_lite.noise import NoiseConfig, NoiseModel
 from esim_lite.renderer import RenderConfig
-from esim_lite.sequence import frame_times_ns, simulate, simulate_sequence
+from esim_lite.sequence import FrameSchedule, frame_times_ns, simulate, simulate_sequence
 from esim_lite.simulator import EventConfig, EventSimulator
 from esim_lite.thresholds import ContrastThresholds, ThresholdConfig, sample_thresholds
 from esim_lite.trajectory import TrajectoryConfig
@@ -164,3 +165,15 @@ def test_event_triggered_frames_sit_on_every_mth_event_and_the_sequence_stops_af
     last_step = seq.events.t_ns >= seq.sample_poses[-2, 0] * 1e9
     assert len(seq.events) - last_step.sum() < 3500
     assert seq.sample_poses[-1, 0] < 3.0
+
+
+@pytest.mark.parametrize("mode", ["rate", "events"])
+def test_a_frame_count_is_never_exceeded_by_one_long_step(mode):
+    schedule = FrameSchedule(FrameConfig(mode=mode, every_events=10, rate_hz=100.0, count=3,
+                                         tail_events=0), duration_s=1.0)
+    n = 1000  # one step over 0.5 s: 50 frame periods and 100 event periods
+    batch = Events(np.zeros(n, np.int16), np.zeros(n, np.int16),
+                   np.linspace(1, 5e8, n).astype(np.int64), np.ones(n, np.int8), (1, 1))
+    assert len(schedule.due(batch, int(5e8))) == 2  # with the one at t = 0: 3
+    assert schedule.n_frames == 3 and schedule.done()
+    assert schedule.due(batch, int(1e9)) == []
