@@ -130,19 +130,19 @@ def _check_writable(out: Path) -> None:
 
 
 def write_shard(plan: ShardPlan, config: DatagenConfig, seed: int, progress=None,
-                render_threads: int | None = None) -> ShardResult:
+                render_threads: int | None = None,
+                textures: TextureSampler | None = None) -> ShardResult:
     """Simulate and write one shard atomically; ``progress(n_events)`` after each chunk and
-    ``progress(None)`` after each sequence."""
+    ``progress(None)`` after each sequence. ``textures``: a sampler over
+    ``config.textures`` already scanned (a large folder is scanned once, not per shard)."""
     start = time.perf_counter()
     config_yaml = to_yaml(config)
     sim = _with_threads(config, render_threads).simulation
-    textures = TextureSampler(config.textures)
+    textures = textures or TextureSampler(config.textures)
     tmp = plan.path.with_name(f"{plan.path.name}.tmp-{os.getpid()}")
-    writer = ShardWriter(tmp, config_yaml)
+    writer = ShardWriter(tmp, config_yaml, seed, list(plan.sequences))
     n_events = n_frames = 0
     try:
-        writer.file.attrs["seed"] = seed
-        writer.file.attrs["sequences"] = list(plan.sequences)
         for index in plan.sequences:
             e, f = _write_sequence(writer, sim, textures, seed, index, progress)
             n_events, n_frames = n_events + e, n_frames + f
@@ -199,18 +199,21 @@ def _write_sequence(writer: ShardWriter, sim, textures: TextureSampler, seed: in
 
 
 _QUEUE = None
+_TEXTURES: TextureSampler | None = None  # one scan of the texture source per worker
 
 
-def _init_worker(q) -> None:
-    global _QUEUE
+def _init_worker(q, texture_config) -> None:
+    global _QUEUE, _TEXTURES
     _QUEUE = q
+    _TEXTURES = TextureSampler(texture_config)
     import cv2
 
     cv2.setNumThreads(1)
 
 
 def _worker(plan: ShardPlan, config: DatagenConfig, seed: int) -> ShardResult:
-    return write_shard(plan, config, seed, progress=_QUEUE.put, render_threads=1)
+    return write_shard(plan, config, seed, progress=_QUEUE.put, render_threads=1,
+                       textures=_TEXTURES)
 
 
 @dataclass(frozen=True)
@@ -238,7 +241,7 @@ def generate(config: DatagenConfig, out: str | Path, n_seq: int, seed: int = 0,
     out = Path(out)
     plans = plan_shards(out, n_seq, config.sequences_per_shard, shard_index, num_shards)
     _check_writable(out)
-    TextureSampler(config.textures)  # fail now, not in every worker, on a bad texture path
+    textures = TextureSampler(config.textures)  # fails here on a bad texture path
     config = _resolve_variant(config)
     config_yaml = to_yaml(config)
     states = {p.index: shard_state(p, config_yaml, seed) for p in plans}
@@ -266,7 +269,7 @@ def generate(config: DatagenConfig, out: str | Path, n_seq: int, seed: int = 0,
         bar.set_postfix_str(f"{stats['events'] / max(elapsed, 1e-9) / 1e3:.0f}k events/s",
                             refresh=False)
 
-    results = _run(todo, config, seed, workers, progress)
+    results = _run(todo, config, seed, workers, progress, textures)
     bar.close()
     return GenerateSummary(len(results), len(plans) - len(todo),
                            sum(r.sequences for r in results), sum(r.events for r in results),
@@ -275,9 +278,9 @@ def generate(config: DatagenConfig, out: str | Path, n_seq: int, seed: int = 0,
 
 
 def _run(todo: list[ShardPlan], config: DatagenConfig, seed: int, workers: int,
-         progress) -> list[ShardResult]:
+         progress, textures: TextureSampler) -> list[ShardResult]:
     if workers <= 1 or len(todo) <= 1:
-        return [write_shard(p, config, seed, progress) for p in todo]
+        return [write_shard(p, config, seed, progress, textures=textures) for p in todo]
     ctx = mp.get_context("spawn")  # drjit/numba threads do not survive fork
     with ctx.Manager() as manager:
         return _run_pool(todo, config, seed, workers, progress, ctx, manager.Queue())
@@ -298,7 +301,8 @@ def _run_pool(todo, config, seed, workers, progress, ctx, q) -> list[ShardResult
     results = []
     try:
         with futures.ProcessPoolExecutor(min(workers, len(todo)), mp_context=ctx,
-                                         initializer=_init_worker, initargs=(q,)) as pool:
+                                         initializer=_init_worker,
+                                         initargs=(q, config.textures)) as pool:
             jobs = [pool.submit(_worker, p, config, seed) for p in todo]
             for job in futures.as_completed(jobs):
                 results.append(job.result())

@@ -22,7 +22,8 @@ seq_000012/                      attrs: sensor_resolution [H, W], num_events, nu
   scene              attrs width_m, height_m, texture_hw; plane z = 0, normal +z
   trajectory/        positions [K,3], rotations [K,3,3], attr knot_spacing_s, duration_s
   thresholds/        pos_map, neg_map float32[H,W] (only when per-pixel mismatch is on)
-/ (file)             attrs: schema_version, config (resolved YAML), complete
+/ (file)             attrs: schema_version, config (resolved YAML), complete; from datagen
+                     also seed and sequences (the indices the shard is to hold)
 ```
 
 Frames are stored as float16 when its rounding (relative 2^-12) changes ``log(eps + I)`` by
@@ -65,12 +66,16 @@ class ShardWriter:
     :meth:`append_frame`, then :meth:`end_sequence`. :meth:`finish` marks the file complete.
     """
 
-    def __init__(self, path: str | Path, config_yaml: str) -> None:
+    def __init__(self, path: str | Path, config_yaml: str, seed: int | None = None,
+                 sequences: list[int] | None = None) -> None:
         self.path = Path(path)
         self.file = h5py.File(self.path, "w")
         self.file.attrs["schema_version"] = SCHEMA_VERSION
         self.file.attrs["config"] = config_yaml
         self.file.attrs["complete"] = False
+        if seed is not None:  # a dataset's shard: which seed and sequences it is to hold
+            self.file.attrs["seed"] = seed
+            self.file.attrs["sequences"] = list(sequences or [])
         self._group: h5py.Group | None = None
 
     def begin_sequence(self, index: int, seed: int, cameras: dict[str, Intrinsics],

@@ -34,11 +34,10 @@ def describe_shard(path: str | Path) -> str:
             g = reader.group(name)
             a = g.attrs
             fr = g["frames"]
-            cams = ", ".join(f"{c} {fr[c].shape[2]}x{fr[c].shape[1]}"
-                             for c in reader.frame_names(name))
-            parts = {k: _stored_bytes(g[k]) for k in ("events", "frames")}
+            names_fr = reader.frame_names(name)
+            cams = ", ".join(f"{c} {fr[c].shape[2]}x{fr[c].shape[1]}" for c in names_fr)
             per_cam = ", ".join(f"{c} {fr[c].id.get_storage_size() / 1e6:.1f}"
-                                for c in reader.frame_names(name))
+                                for c in names_fr)
             lines.append(
                 f"  {name}: {int(a['num_events']):,} events ({int(a['num_pos']):,} ON / "
                 f"{int(a['num_neg']):,} OFF) over {float(a['duration']):.3f} s; "
@@ -46,7 +45,7 @@ def describe_shard(path: str | Path) -> str:
                 f"C+ {a['contrast_threshold_pos']:.3f} C- {a['contrast_threshold_neg']:.3f}"
                 f"{' + per-pixel maps' if 'thresholds' in g else ''}; texture {a['texture']}; "
                 f"renderer {a['renderer']}\n"
-                f"    stored MB: events {parts['events'] / 1e6:.1f}, frames {per_cam}")
+                f"    stored MB: events {_stored_bytes(g['events']) / 1e6:.1f}, frames {per_cam}")
             totals["events"] += int(a["num_events"])
             totals["frames"] += fr["ts"].shape[0]
     lines.append(f"  total: {totals['events']:,} events, {totals['frames']} frames")
