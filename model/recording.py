@@ -106,7 +106,14 @@ def open_recording(path: str | Path, sensor_hw: tuple[int, int] | None = None,
                      f".aedat4, .raw or an ECD folder)")
 
 
-def _events(x, y, t_ns, p_on, hw) -> Events:
+def _events(x, y, t_ns, p_on, hw, source: Path) -> Events:
+    """Events from a decoder's arrays; coordinates that int16 cannot hold are an error
+    naming ``source`` (the cast would wrap them onto the sensor)."""
+    x, y = np.asarray(x), np.asarray(y)
+    for name, v in (("x", x), ("y", y)):
+        if len(v) and (v.min() < -2**15 or v.max() >= 2**15):
+            raise ValueError(f"{source}: coordinates outside the {hw[1]}x{hw[0]} sensor "
+                             f"({name} {v.min()}..{v.max()})")
     return Events(np.asarray(x, np.int16), np.asarray(y, np.int16),
                   np.asarray(t_ns, np.int64), np.where(np.asarray(p_on) > 0, 1, -1).astype(np.int8),
                   hw)
@@ -182,7 +189,7 @@ def _open_hdf5(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
             for start in range(0, n, size):
                 sl = slice(start, min(start + size, n))
                 yield _events(ev["xs"][sl], ev["ys"][sl], np.round(ev["ts"][sl] * 1e9),
-                              ev["ps"][sl], hw)
+                              ev["ps"][sl], hw, path)
 
     return Recording(path, "hdf5", hw, frames, chunks)
 
@@ -321,10 +328,7 @@ def _open_text(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
         for t, x, y, p in _text_chunks(events_file, size):
             if len(p) and not np.all((p == 0) | (p == 1) | (p == -1)):
                 raise ValueError(f"{events_file}: polarity must be 0/1 (or -1/1)")
-            if len(x) and max(x.max(), y.max()) >= 2**15:  # before the int16 cast wraps them
-                raise ValueError(f"{events_file}: coordinates outside the {hw[1]}x{hw[0]} "
-                                 f"sensor (up to {max(x.max(), y.max())})")
-            yield _events(x, y, t, p, hw)
+            yield _events(x, y, t, p, hw, events_file)
 
     return Recording(events_file, "text", hw, frames, chunks)
 
@@ -377,7 +381,7 @@ def _open_aedat4(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
             for track, packet in dec:
                 if track.id == ev_id and len(packet):
                     yield _events(packet["x"], packet["y"], packet["t"].astype(np.int64) * 1000,
-                                  packet["on"], hw)
+                                  packet["on"], hw, path)
 
     return Recording(path, "aedat4", hw, _frames(images, times, path), chunks)
 
@@ -398,6 +402,6 @@ def _open_raw(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
                 ev = packet.get("events")
                 if ev is not None and len(ev):
                     yield _events(ev["x"], ev["y"], ev["t"].astype(np.int64) * 1000, ev["on"],
-                                  hw)
+                                  hw, path)
 
     return Recording(path, "raw", hw, None, chunks)

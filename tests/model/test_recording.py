@@ -160,3 +160,16 @@ def test_event_camera_dataset_snippets():
         sec, frac = first[0].split(".")
         assert ev.t_ns[0] == int(sec) * 10**9 + int(frac.ljust(9, "0"))  # exact nanoseconds
         assert ev.x[0] == int(first[1]) and ev.p[0] == (1 if first[3] == "1" else -1)
+
+
+def test_coordinates_int16_cannot_hold_are_an_error_not_a_wrap(tmp_path):
+    ev = events(n=100, hw=(48, 64))
+    path = tmp_path / "wide.h5"
+    write_hdf5(path, ev, with_frames=False)
+    xs = ev.x.astype(np.int32)
+    xs[50] = 65_539  # an int16 cast would wrap it to x = 3, inside the sensor
+    with h5py.File(path, "a") as f:
+        del f["events/xs"]
+        f.create_dataset("events/xs", data=xs)
+    with pytest.raises(ValueError, match=r"wide.h5: coordinates outside the 64x48 sensor"):
+        open_recording(path).read_all()
