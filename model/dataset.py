@@ -26,7 +26,7 @@ from datagen.shard import ShardReader
 from esim_lite.motion import planar_flow
 from esim_lite.pose import Pose
 from model.flow import stack_flows
-from model.stacking import StackConfig, stack_sequence, stack_sequence_by_time, stack_span_ns
+from model.stacking import StackConfig, stack_span_ns, stacks_around
 
 
 @dataclass(frozen=True)
@@ -61,7 +61,8 @@ class SampleRef:
     path: str
     sequence: str
     frame: int
-    anchor: int
+    anchor: int  # events before the frame (the central SBN stack ends here)
+    t_ns: int  # the frame's time (the central SBT stack ends here)
 
 
 def find_shards(root: str | Path) -> list[Path]:
@@ -101,17 +102,18 @@ def index_samples(shards: list[Path], data: DataConfig, n_stacks: int, scale: in
                                      f"{', '.join(cams)}); generate with --scale {scale}")
                 total = reader.num_events(seq)
                 idx = reader.frame_event_idx(seq)
+                t = reader.frame_times_ns(seq)
                 if data.stacks.method == "sbn":
                     fits = [k > 0 and a - before >= 0 and a + after <= total
                             for k, a in enumerate(idx)]
                 else:  # by time: the stacks' time span must lie inside the recording
-                    t = reader.frame_times_ns(seq)
                     t_last = int(round(reader.group(seq)["events/ts"][total - 1] * 1e9)) \
                         if total else 0
                     fits = [k > 0 and t[k] - (half + 1) * span >= 0 and
                             t[k] + half * span <= t_last for k in range(len(idx))]
                 samples[f"{path.name}/{seq}"] = [
-                    SampleRef(str(path), seq, k, int(a)) for k, a in enumerate(idx) if fits[k]]
+                    SampleRef(str(path), seq, k, int(a), int(t[k]))
+                    for k, a in enumerate(idx) if fits[k]]
     val_keys = split_sequences(sorted(samples), data.val_fraction)
     train = [s for k in sorted(samples) if k not in val_keys for s in samples[k]]
     val = [s for k in sorted(samples) if k in val_keys for s in samples[k]]
@@ -156,19 +158,16 @@ class ShardSamples(Dataset):
 
     def _stacks(self, reader: ShardReader, ref: SampleRef):
         """(events read, stacks) around the sample's frame, by number or by time."""
-        cfg, half = self.data.stacks, self.n_stacks // 2
+        cfg, half, t = self.data.stacks, self.n_stacks // 2, ref.t_ns
         if cfg.method == "sbn":
             lo = max(0, ref.anchor - (half + 1) * cfg.events_per_stack)
             hi = min(reader.num_events(ref.sequence), ref.anchor + half * cfg.events_per_stack)
-            events = reader.events(ref.sequence, lo, hi)
-            return events, stack_sequence(events, cfg, ref.anchor - lo, self.n_stacks)
-        t = int(reader.frame_times_ns(ref.sequence)[ref.frame])
-        span = stack_span_ns(cfg)
-        lo = reader.event_index_at(ref.sequence, t - (half + 1) * span)
-        hi = reader.event_index_at(ref.sequence, t + half * span)
+        else:
+            span = stack_span_ns(cfg)
+            lo = reader.event_index_at(ref.sequence, t - (half + 1) * span)
+            hi = reader.event_index_at(ref.sequence, t + half * span)
         events = reader.events(ref.sequence, lo, hi)
-        built = stack_sequence_by_time(events, cfg, t, self.n_stacks)
-        return events, built
+        return events, stacks_around(events, cfg, self.n_stacks, ref.anchor - lo, t)
 
     def _exact_flows(self, reader: ShardReader, ref: SampleRef, events, built) -> np.ndarray:
         """float32[n, 2, H, W]: the plane's true flow from the central stack's end time to

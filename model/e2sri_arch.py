@@ -26,6 +26,7 @@ from dataclasses import dataclass
 from typing import Literal
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from model.blocks import PROJECTION, conv, deconv, down, res_stack
@@ -142,3 +143,23 @@ FLOW_SCALE = 4.0
 
 def count_parameters(model: nn.Module) -> int:
     return sum(p.numel() for p in model.parameters() if p.requires_grad)
+
+
+def central_input(config: NetConfig, stacks: torch.Tensor, flows: torch.Tensor,
+                  aps: torch.Tensor | None, first_pass: E2SRI | None) -> torch.Tensor:
+    """The network's central input (see :attr:`NetConfig.central`), (B, c, H, W) or
+    (B, 1, H, W): the central stack, the APS frame, or a main model's output brought back
+    to the sensor size (Duo-Pass). ``stacks`` (B, n, c, H, W), ``flows`` (B, n, 2, H, W)."""
+    mid = config.n_stacks // 2
+    if config.central == "stack":
+        return stacks[:, mid]
+    if config.central == "aps":
+        if aps is None:
+            raise ValueError("a Complementary model needs an APS frame at every output")
+        return aps
+    if first_pass is None:
+        raise ValueError("a Duo-Pass model needs its first-pass (main) model")
+    with torch.no_grad():
+        first = first_pass(stacks, stacks[:, mid], flows)
+    return F.avg_pool2d(first.clamp(0, 1), config.scale)
+

@@ -38,10 +38,9 @@ from model.baselines import EventFilter, FilterConfig, upsample
 from model.dataset import find_shards, index_samples
 from model.lpips import LPIPS
 from model.metrics import mse, psnr, ssim
-from model.reconstruct import EventWindow, Reconstructor
+from model.reconstruct import Reconstructor
 from model.recording import Recording, open_recording
-from model.stacking import stack_sequence
-from model.temporal import temporally_consistent, warp_error
+from model.temporal import reference_motion, temporally_consistent, warp_error
 
 log = logging.getLogger(__name__)
 BASELINES = ("hf", "direct", "complementary")
@@ -102,30 +101,26 @@ def run_sequence(recording: Recording, model: Reconstructor, frame_ids: list[int
                  name: str) -> SequenceOutputs:
     """Stream the recording once; produce every method's image at each frame in order."""
     frames = recording.frames
-    n, half = model.net.config.n_stacks, model.net.config.n_stacks // 2
-    per = model.stacks.events_per_stack
     filters = {m: EventFilter(m, recording.sensor_hw, options.filters) for m in options.baselines}
     out = SequenceOutputs(name, {m: [] for m in ("ours", *options.baselines)}, [], None
                           if hr_frames is None else [], [])
     chunk_size = 1_000_000
-    window = EventWindow(recording.events(chunk_size), recording.sensor_hw,
-                         keep=n * per + 2 * chunk_size)
+    window = model.event_window(recording.events(chunk_size), recording.sensor_hw, chunk_size)
     fed, next_frame = 0, 0
     window.pin = fed  # the baselines have consumed the events before this index
     for pos, k in enumerate(frame_ids):
         t = int(frames.t_ns[k])
-        anchor = window.index_after(t)
-        events, first = window.slice(anchor - (half + 1) * per, anchor + half * per)
-        stacks = np.stack([s.image for s in stack_sequence(events, model.stacks,
-                                                           anchor - first, n)])
+        given = model.stacks_at(window, t)
+        anchor = given.anchor
         aps = frames.intensity[k] if model.net.config.central == "aps" else None
-        ours, _ = model.run(stacks, aps)
+        ours, _ = model.run(given.stacks, aps)
         # baselines see every event up to t and the APS frames strictly before t, in order
         while next_frame < len(frames) and frames.t_ns[next_frame] < t:
             tf = int(frames.t_ns[next_frame])
             upto = window.index_after(tf)
+            since = window.slice(fed, upto)[0]
             for f in filters.values():
-                f.add_events(window.slice(fed, upto)[0])
+                f.add_events(since)
                 f.add_frame(frames.intensity[next_frame], tf)
             fed, next_frame = max(fed, upto), next_frame + 1
             window.pin = fed
@@ -134,13 +129,12 @@ def run_sequence(recording: Recording, model: Reconstructor, frame_ids: list[int
             f.add_events(chunk)
             out.images[m].append(f.image(t))  # at sensor size; upsampled for the HR protocol
         fed = window.pin = anchor
-        window.forget(min(fed, anchor - (half + 1) * per))
+        window.forget(min(fed, given.first))
         out.images["ours"].append(ours)
         out.lr_targets.append(frames.intensity[k])
         if hr_frames is not None:
             out.hr_targets.append(hr_frames[pos])
-        out.event_images.append(event_image(events.slice(max(0, anchor - first - per),
-                                                         anchor - first)))
+        out.event_images.append(event_image(given.events.slice(*given.central)))
     return out
 
 
@@ -159,19 +153,21 @@ def score(seq: SequenceOutputs, scale: int, options: EvalOptions, lpips_net) -> 
     if options.temporal and len(methods["ours"]) > 1:
         methods["ours+tc"] = temporally_consistent(methods["ours"], options.tc_weight)
     for proto, targets in protocols.items():
+        motion = None  # the targets' flows: every normalisation leaves targets method-free
         for method, images in methods.items():
             if method.startswith("ours"):  # the network's output is at HR
                 preds = [_down(im, scale) for im in images] if proto == "lr" else images
             else:  # baselines work at the sensor size
                 preds = [upsample(im, scale) for im in images] if proto == "hr" else images
-            per_frame = [frame_metrics(*normalized(p, g, options.normalize), lpips_net)
-                         for p, g in zip(preds, targets)]
+            pairs = [normalized(p, g, options.normalize) for p, g in zip(preds, targets)]
+            per_frame = [frame_metrics(p, g, lpips_net) for p, g in pairs]
             row = {"sequence": seq.name, "protocol": proto, "method": method,
                    "frames": len(preds)}
             for key in per_frame[0]:
                 row[key] = float(np.mean([m[key] for m in per_frame]))
-            refs = [normalized(p, g, options.normalize) for p, g in zip(preds, targets)]
-            row["ewarp"] = warp_error([r[0] for r in refs], [r[1] for r in refs])
+            if motion is None:
+                motion = reference_motion([g for _, g in pairs])
+            row["ewarp"] = warp_error([p for p, _ in pairs], motion=motion)
             rows.append(row)
     return rows
 

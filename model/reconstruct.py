@@ -23,16 +23,15 @@ from typing import Literal
 import cv2
 import numpy as np
 import torch
-import torch.nn.functional as F
 from tqdm import tqdm
 
 from esim_lite.events import Events
 from model import checkpoint
 from model.dataset import stack_to_input
-from model.e2sri_arch import E2SRI
+from model.e2sri_arch import E2SRI, central_input
 from model.flow import stack_flows
 from model.recording import Recording
-from model.stacking import StackConfig, stack_sequence
+from model.stacking import StackConfig, stack_span_ns, stacks_around
 from model.temporal import consistency_step
 
 log = logging.getLogger(__name__)
@@ -43,11 +42,16 @@ _CENTRAL = {"main": "stack", "complementary": "aps", "duo-pass": "first_pass"}
 class EventWindow:
     """Random access by global event index to a chunked stream, keeping only what is still
     needed: below the last :meth:`forget` index, and (with ``keep``) more than ``keep``
-    events behind the newest one read, events are dropped, unless ``pin`` holds them."""
+    events behind the newest one read, events are dropped, unless ``pin`` holds them.
+    ``keep_ns`` does the same by time: when a chunk is read, events more than ``keep_ns``
+    older than the newest event *before* it are dropped (a read-ahead never reaches back
+    further than the time it was asked for)."""
 
     def __init__(self, chunks: Iterator[Events], hw: tuple[int, int],
-                 keep: int | None = None) -> None:
-        self._chunks, self.hw, self.keep = chunks, hw, keep
+                 keep: int | None = None, keep_ns: int | None = None) -> None:
+        if keep is not None and keep_ns is not None:
+            raise ValueError("give keep or keep_ns, not both")
+        self._chunks, self.hw, self.keep, self.keep_ns = chunks, hw, keep, keep_ns
         self.buf, self.offset, self.done = Events.empty(hw), 0, False
         self.pin: int | None = None
 
@@ -61,9 +65,14 @@ class EventWindow:
         except StopIteration:
             self.done = True
             return False
+        newest = int(self.buf.t_ns[-1]) if len(self.buf) else None
         self.buf = Events.concatenate([self.buf, chunk], self.hw)
-        if self.keep is not None:  # reading far ahead must not grow memory without bound
+        floor = None  # reading far ahead must not grow memory without bound
+        if self.keep is not None:
             floor = self.end - self.keep
+        elif self.keep_ns is not None and newest is not None:
+            floor = self.offset + int(np.searchsorted(self.buf.t_ns, newest - self.keep_ns))
+        if floor is not None:
             self.forget(floor if self.pin is None else min(floor, self.pin))
         return True
 
@@ -90,6 +99,19 @@ class EventWindow:
             new = min(index, self.end)  # before the buffer shrinks: ``end`` depends on it
             self.buf = self.buf.slice(new - self.offset, len(self.buf))
             self.offset = new
+
+
+@dataclass(frozen=True, eq=False)
+class StackedEvents:
+    """One output's input: ``stacks`` uint8[n, c, H, W] built from ``events`` (global index
+    of its first event: ``first``); ``anchor``: global index of the first event after the
+    output time; ``central``: the central stack's event range within ``events``."""
+
+    stacks: np.ndarray
+    events: Events
+    first: int
+    anchor: int
+    central: tuple[int, int]
 
 
 @dataclass(frozen=True, eq=False)
@@ -137,6 +159,34 @@ class Reconstructor:
             per_channel = max(1, events_per_stack // trained.channels)
         return cls(net, first, replace(trained, events_per_channel=per_channel), dev)
 
+    def event_window(self, chunks: Iterator[Events], hw: tuple[int, int],
+                     chunk_size: int) -> EventWindow:
+        """A window over ``chunks`` holding what the stacks of one output need (SBN: a
+        count of events; SBT: a time span), plus the read-ahead of ``chunk_size`` chunks."""
+        n = self.net.config.n_stacks
+        if self.stacks.method == "sbt":
+            return EventWindow(chunks, hw, keep_ns=(n + 1) * stack_span_ns(self.stacks))
+        return EventWindow(chunks, hw, keep=n * self.stacks.events_per_stack + 2 * chunk_size)
+
+    def stacks_at(self, window: EventWindow, t_ns: int) -> StackedEvents:
+        """The network's stacks for an output at ``t_ns``: the central one ends at the last
+        event at or before ``t_ns`` (SBN) or at ``t_ns`` (SBT)."""
+        cfg, n = self.stacks, self.net.config.n_stacks
+        half = n // 2
+        anchor = window.index_after(t_ns)
+        if cfg.method == "sbt":
+            span = stack_span_ns(cfg)
+            lo = window.index_after(t_ns - (half + 1) * span)
+            hi = window.index_after(t_ns + half * span)
+        else:
+            per = cfg.events_per_stack
+            lo, hi = anchor - (half + 1) * per, anchor + half * per
+        events, first = window.slice(lo, hi)
+        built = stacks_around(events, cfg, n, anchor - first, t_ns)
+        centre = built[half]
+        return StackedEvents(np.stack([st.image for st in built]), events, first, anchor,
+                             (centre.start, centre.end))
+
     @torch.inference_mode()
     def run(self, stacks: np.ndarray, aps: np.ndarray | None) -> tuple[np.ndarray, dict]:
         """(float32[sH, sW] image in [0, 1], seconds spent in flow and network) for uint8
@@ -149,24 +199,17 @@ class Reconstructor:
         start = time.perf_counter()
         x = torch.from_numpy(stack_to_input(stacks))[None].to(self.device)
         f = torch.from_numpy(flows)[None].to(self.device)
-        mid = x.shape[1] // 2
-        central = self._central(x, f, aps, mid)
+        central = self._central(x, f, aps)
         out = self.net(x, central, f).clamp(0, 1)[0, 0].float().cpu().numpy()
         if self.device.type == "cuda":
             torch.cuda.synchronize()
         timing["network"] = time.perf_counter() - start
         return out, timing
 
-    def _central(self, x, f, aps, mid):
-        kind = self.net.config.central
-        if kind == "stack":
-            return x[:, mid]
-        if kind == "aps":
-            if aps is None:
-                raise ValueError("Complementary mode needs an APS frame at every output")
-            return torch.from_numpy(aps.astype(np.float32))[None, None].to(self.device)
-        first = self.first_pass(x, x[:, mid], f).clamp(0, 1)
-        return F.avg_pool2d(first, self.net.config.scale)
+    def _central(self, x, f, aps):
+        if aps is not None:
+            aps = torch.from_numpy(aps.astype(np.float32))[None, None].to(self.device)
+        return central_input(self.net.config, x, f, aps, self.first_pass)
 
 
 @dataclass(frozen=True)
@@ -227,24 +270,18 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
     needs only the previous frame, so memory stays bounded."""
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    n = model.net.config.n_stacks
-    per, half = model.stacks.events_per_stack, n // 2
-    window = EventWindow(recording.events(chunk), recording.sensor_hw,
-                         keep=n * per + 2 * chunk)
+    window = model.event_window(recording.events(chunk), recording.sensor_hw, chunk)
     seconds = {"stacking": 0.0, "flow": 0.0, "network": 0.0}
     paths, times, previous = [], [], None
     total = len(recording.frames) if plan.at == "frames" else None
     bar = tqdm(total=total, disable=not show_progress, unit="frame", desc="reconstruct")
     for t, k in output_times(plan, recording, window):
         start = time.perf_counter()
-        anchor = window.index_after(t)
-        events, first = window.slice(anchor - (half + 1) * per, anchor + half * per)
-        stacks = np.stack([s.image for s in stack_sequence(events, model.stacks,
-                                                           anchor - first, n)])
-        window.forget(first)
+        given = model.stacks_at(window, t)
+        window.forget(given.first)
         seconds["stacking"] += time.perf_counter() - start
         aps = recording.frames.intensity[k] if k is not None else None
-        image, timing = model.run(stacks, aps)
+        image, timing = model.run(given.stacks, aps)
         for key, v in timing.items():
             seconds[key] += v
         if temporal is not None:

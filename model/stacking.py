@@ -174,6 +174,15 @@ def stack_sequence_by_time(events: Events, config: StackConfig, t_anchor_ns: int
             for k in range(-half, half + 1)]
 
 
+def stacks_around(events: Events, config: StackConfig, n_stacks: int, anchor: int,
+                  t_anchor_ns: int) -> list[Stack]:
+    """``n_stacks`` stacks by ``config.method``, in time order: SBN's central stack ends at
+    event ``anchor`` (exclusive), SBT's at time ``t_anchor_ns``."""
+    if config.method == "sbt":
+        return stack_sequence_by_time(events, config, t_anchor_ns, n_stacks)
+    return stack_sequence(events, config, anchor, n_stacks)
+
+
 def stack_span_ns(config: StackConfig) -> int:
     """Duration of one SBT stack in nanoseconds."""
     return int(round(config.channels * config.channel_ms * 1e6))

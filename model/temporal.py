@@ -44,13 +44,23 @@ def non_occluded(forward: np.ndarray, backward: np.ndarray) -> np.ndarray:
     return inside & (err <= 0.01 * (np.sum(forward**2, -1) + np.sum(back**2, -1)) + 0.5)
 
 
-def warp_error(outputs: list[np.ndarray], references: list[np.ndarray]) -> float:
-    """Mean E_warp (x1e-3) over consecutive pairs; flow and mask from ``references``."""
+def reference_motion(references: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(forward flow, non-occlusion mask) between each consecutive pair of ``references``."""
+    motion = []
+    for a, b in zip(references[:-1], references[1:]):
+        fw = _flow(a, b)
+        motion.append((fw, non_occluded(fw, _flow(b, a))))
+    return motion
+
+
+def warp_error(outputs: list[np.ndarray], references: list[np.ndarray] | None = None,
+               motion: list[tuple[np.ndarray, np.ndarray]] | None = None) -> float:
+    """Mean E_warp (x1e-3) over consecutive pairs; flow and mask from ``references``, or
+    given as ``motion`` (:func:`reference_motion`) when several outputs share them."""
+    if motion is None:
+        motion = reference_motion(references)
     errors = []
-    for k in range(len(outputs) - 1):
-        fw = _flow(references[k], references[k + 1])
-        bw = _flow(references[k + 1], references[k])
-        mask = non_occluded(fw, bw)
+    for k, (fw, mask) in enumerate(motion):
         if mask.any():
             diff = outputs[k] - warp(outputs[k + 1], fw)
             errors.append(float(np.mean(diff[mask] ** 2)))

@@ -20,12 +20,11 @@ from pathlib import Path
 import numpy as np
 import torch
 import torch.distributed as dist
-import torch.nn.functional as F
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
 from esim_lite.dataconf import to_yaml
-from model import checkpoint
+from model import checkpoint, e2sri_arch
 from model.config import OptimConfig, TrainConfig
 from model.dataset import ShardSamples, find_shards, index_samples
 from model.e2sri_arch import E2SRI, count_parameters
@@ -90,14 +89,8 @@ def lr_lambda(optim: OptimConfig, steps_per_epoch: int):
 
 def central_input(batch: dict, config: TrainConfig, first_pass: E2SRI | None) -> torch.Tensor:
     """What the network's central input is for this experiment (see NetConfig.central)."""
-    mode, mid = config.model.central, config.model.n_stacks // 2
-    if mode == "stack":
-        return batch["stacks"][:, mid]
-    if mode == "aps":
-        return batch["lr"]
-    with torch.no_grad():
-        first = first_pass(batch["stacks"], batch["stacks"][:, mid], batch["flows"])
-    return F.avg_pool2d(first.clamp(0, 1), config.model.scale)
+    return e2sri_arch.central_input(config.model, batch["stacks"], batch["flows"],
+                                    batch["lr"], first_pass)
 
 
 @torch.inference_mode()

@@ -138,6 +138,35 @@ def test_complementary_and_duo_pass_reconstruction(tiny_shards, tiny_checkpoint,
         assert cv2.imread(str(r.frames[-1]), 0).shape == (96, 128)
 
 
+def test_sbt_models_get_time_stacks_streamed_with_bounded_memory():
+    """A model trained on stacks by time gets them at reconstruction too: streamed from small
+    chunks they equal the stacks built from the whole recording in memory, while the event
+    rate jumps 50x, and the window holds only about the stacks' time span."""
+    import torch
+
+    from model.e2sri_arch import E2SRI, NetConfig
+    from model.stacking import StackConfig, stack_sequence_by_time
+
+    hw, n = (8, 8), 200_000
+    rng = np.random.default_rng(3)
+    gaps = np.repeat(np.tile([1_000, 50_000], 10), n // 20)  # ns: 10k fast, 10k slow, ...
+    ev = Events(rng.integers(0, 8, n).astype(np.int16), rng.integers(0, 8, n).astype(np.int16),
+                np.cumsum(gaps).astype(np.int64), rng.choice([-1, 1], n).astype(np.int8), hw)
+    cfg = StackConfig(method="sbt", channels=3, channel_ms=2.0)
+    net = E2SRI(NetConfig(base_channels=8, hr_channels=4, c_blocks=1, blocks=1))
+    model = Reconstructor(net, None, cfg, torch.device("cpu"))
+    window = model.event_window((ev.slice(k, k + 1000) for k in range(0, n, 1000)), hw, 1000)
+    biggest = 0
+    for t in np.linspace(ev.t_ns[0] + 30_000_000, ev.t_ns[-1] - 30_000_000, 60).astype(int):
+        got = model.stacks_at(window, int(t))
+        want = stack_sequence_by_time(ev, cfg, int(t), 3)
+        np.testing.assert_array_equal(got.stacks, np.stack([s.image for s in want]))
+        assert got.anchor == np.searchsorted(ev.t_ns, t, side="right")
+        window.forget(got.first)
+        biggest = max(biggest, len(window.buf))
+    assert biggest <= 4 * 6_000 + 2_000  # (n+1) stack spans of 6 ms at 1 event/us, + a chunk
+
+
 def test_forgetting_most_of_the_window_keeps_global_indices():
     hw = (4, 4)
     ev = Events(np.zeros(10_000, np.int16), np.zeros(10_000, np.int16),
