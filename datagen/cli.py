@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import sys
@@ -47,7 +48,11 @@ def build_parser() -> argparse.ArgumentParser:
                      help="override a config value, e.g. simulation.render.backend=homography")
     gen.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
     gen.add_argument("--scale", help="HR scales: 2, 4 or 2,4 (default from the config)")
-    gen.add_argument("--textures", help="folder or zip/pk3 of images (default: built-in)")
+    gen.add_argument("--textures", nargs="+", metavar="SOURCE",
+                     help="one or more folders or zip/pk3 files of images, or 'builtin' "
+                          "(default: built-in)")
+    gen.add_argument("--texture-split", choices=["all", "train", "test"],
+                     help="use only the train or test part of every texture source")
     gen.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                      help="worker processes (default: all cores)")
     gen.add_argument("--shard-index", type=int, default=0,
@@ -75,7 +80,11 @@ def _generate(args: argparse.Namespace) -> int:
             raise ValueError(f"--scale must be 2, 4 or 2,4; got {args.scale!r}")
         overrides.append(f"simulation.camera.scales=[{','.join(scales)}]")
     if args.textures:
-        overrides.append(f"textures.source={args.textures!s}")
+        sources = [str(t) for t in args.textures]
+        value = sources[0] if len(sources) == 1 else sources
+        overrides.append(f"textures.source={json.dumps(value)}")
+    if args.texture_split:
+        overrides.append(f"textures.split={args.texture_split}")
     config = load_config(args.config, overrides)
     summary = generate(config, args.out, args.n_seq, seed=args.seed, workers=args.workers,
                        shard_index=args.shard_index, num_shards=args.num_shards,

@@ -8,10 +8,13 @@ brightness and never exact black (where ``log(eps + I)`` would be dominated by `
 
 from __future__ import annotations
 
+import fnmatch
 import logging
 import zipfile
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -27,6 +30,9 @@ BUILTIN_FILES = ("astronaut.png", "brick.png", "camera.png", "chelsea.png", "cof
                  "coins.png", "grass.png", "gravel.png", "hubble_deep_field.jpg", "ihc.png",
                  "moon.png", "page.png", "rocket.jpg", "text.png", "motorcycle_left.png")
 PROCEDURAL = ("noise", "shapes", "grating", "checker")
+#: Material packs ship auxiliary maps beside each texture (ufoai: ``_nm`` normal maps, ``_sm``
+#: specular and ``_gm`` gloss maps); they are not pictures of anything and are left out.
+MATERIAL_MAPS = ("*_nm.*", "*_sm.*", "*_gm.*")
 
 
 @dataclass(frozen=True)
@@ -34,7 +40,15 @@ class TextureConfig:
     """Where textures come from and how they are varied.
 
     Attributes:
-        source: ``builtin``, or a folder (searched recursively) or a zip/pk3 of images.
+        source: ``builtin``, a folder (searched recursively) or a zip/pk3 of images, or a
+            list of these (each sequence first draws a source, then an image in it).
+        source_weights: relative probability of each source (default: equal).
+        split: ``all`` images, or only the ``train`` or ``test`` part of each source. An
+            image's part depends only on its name inside its source (file name, or member
+            path in an archive), so a test set never sees a training image.
+        test_fraction: share of each source's images in the ``test`` part.
+        exclude: ``fnmatch`` patterns of file names to leave out (default: the normal,
+            specular and gloss maps of material packs).
         procedural_fraction: share of sequences using a procedural pattern instead.
         crop_fraction: (min, max) side of the random crop relative to the image.
         low_range, high_range: ranges of the darkest / brightest linear intensity.
@@ -44,7 +58,11 @@ class TextureConfig:
             crop seen 256 texels wide) is below this are redrawn; 0 keeps everything.
     """
 
-    source: str = "builtin"
+    source: str | tuple[str, ...] = "builtin"
+    source_weights: tuple[float, ...] | None = None
+    split: Literal["all", "train", "test"] = "all"
+    test_fraction: float = 0.1
+    exclude: tuple[str, ...] = MATERIAL_MAPS
     procedural_fraction: float = 0.25
     crop_fraction: tuple[float, float] = (0.6, 1.0)
     low_range: tuple[float, float] = (0.02, 0.2)
@@ -54,6 +72,15 @@ class TextureConfig:
     min_detail: float = 0.03
 
     def __post_init__(self) -> None:
+        if not self.sources:
+            raise ValueError("source must name at least one texture source")
+        if self.source_weights is not None and (
+                len(self.source_weights) != len(self.sources)
+                or min(self.source_weights) < 0 or sum(self.source_weights) <= 0):
+            raise ValueError(f"source_weights must be {len(self.sources)} non-negative "
+                             f"numbers, not all 0 (one per source)")
+        if not 0 < self.test_fraction < 1:
+            raise ValueError("test_fraction must be in (0, 1)")
         if not 0 <= self.procedural_fraction <= 1:
             raise ValueError("procedural_fraction must be in [0, 1]")
         lo, hi = self.crop_fraction
@@ -64,6 +91,19 @@ class TextureConfig:
             raise ValueError("need 0 < low_range <= ... < high_range")
         if self.gamma <= 0 or self.max_texels < 16:
             raise ValueError("gamma must be > 0 and max_texels >= 16")
+
+    @property
+    def sources(self) -> tuple[str, ...]:
+        return (self.source,) if isinstance(self.source, str) else tuple(self.source)
+
+
+def in_split(key: str, split: str, test_fraction: float) -> bool:
+    """Whether the image named ``key`` belongs to ``split`` (``all``, ``train``, ``test``):
+    a fixed hash of the name, so the split never depends on what else is in the source."""
+    if split == "all":
+        return True
+    is_test = zlib.crc32(key.lower().encode()) % 100_000 < test_fraction * 100_000
+    return is_test == (split == "test")
 
 
 def _decode(data: bytes) -> np.ndarray | None:
@@ -86,10 +126,14 @@ def _decode(data: bytes) -> np.ndarray | None:
 class ImageLibrary:
     """A list of image files (in folders or archives) read on demand.
 
-    Unreadable entries are skipped with a warning and counted in ``skipped``.
+    Unreadable entries are skipped with a warning and counted in ``skipped``. ``exclude``
+    drops file names matching any of its patterns; ``split`` keeps one part of the images
+    (see :func:`in_split`).
     """
 
-    def __init__(self, source: str | Path) -> None:
+    def __init__(self, source: str | Path, exclude: tuple[str, ...] = MATERIAL_MAPS,
+                 split: Literal["all", "train", "test"] = "all", test_fraction: float = 0.1
+                 ) -> None:
         self.source = str(source)
         self.skipped = 0
         self._entries: list[tuple[str, str]] = []  # (container, member) pairs
@@ -101,8 +145,14 @@ class ImageLibrary:
                              if (folder / f).is_file()]
         else:
             self._scan(Path(self.source))
+        found = len(self._entries)
+        self._entries = [e for e in self._entries
+                         if not any(fnmatch.fnmatch(_base(e).lower(), p) for p in exclude)
+                         and in_split(_key(e), split, test_fraction)]
         if not self._entries:
-            raise FileNotFoundError(f"{self.source}: no readable images found "
+            part = f" in its {split!r} part ({found} before the split/exclusion)" \
+                if split != "all" or found else ""
+            raise FileNotFoundError(f"{self.source}: no readable images found{part} "
                                     f"({', '.join(IMAGE_SUFFIXES + ARCHIVE_SUFFIXES)})")
 
     def _scan(self, path: Path) -> None:
@@ -124,6 +174,10 @@ class ImageLibrary:
 
     def __len__(self) -> int:
         return len(self._entries)
+
+    def keys(self) -> list[str]:
+        """The split key of every image (its name inside the source)."""
+        return [_key(e) for e in self._entries]
 
     def name(self, i: int) -> str:
         container, member = self._entries[i]
@@ -149,6 +203,16 @@ class ImageLibrary:
             log.warning("%s: skipped texture (%s)", self.name(i), problem)
             return None
         return img
+
+
+def _key(entry: tuple[str, str]) -> str:
+    """An image's name inside its source: the archive member's path, else the file name."""
+    container, member = entry
+    return member if member else Path(container).name
+
+
+def _base(entry: tuple[str, str]) -> str:
+    return Path(_key(entry)).name
 
 
 def procedural(kind: str, size: int, rng: np.random.Generator) -> np.ndarray:
@@ -207,8 +271,15 @@ class TextureSampler:
 
     def __init__(self, config: TextureConfig) -> None:
         self.config = config
-        self.library = ImageLibrary(config.source)
+        self.libraries = [ImageLibrary(src, config.exclude, config.split, config.test_fraction)
+                          for src in config.sources]
+        weights = np.asarray(config.source_weights or [1.0] * len(self.libraries), float)
+        self._cum = np.cumsum(weights / weights.sum())
         self.flat = 0  # photo crops redrawn for lack of detail
+
+    @property
+    def skipped(self) -> int:
+        return sum(lib.skipped for lib in self.libraries)
 
     def sample(self, rng: np.random.Generator, aspect: float, width: int) -> tuple[np.ndarray,
                                                                                    str]:
@@ -244,10 +315,14 @@ class TextureSampler:
 
     def _photo(self, rng: np.random.Generator) -> tuple[np.ndarray, str]:
         for _ in range(20):
-            i = int(rng.integers(len(self.library)))
-            img = self.library.read(i)
+            # a source drawn by weight (no draw with a single source)
+            lib = self.libraries[0] if len(self.libraries) == 1 else \
+                self.libraries[min(int(np.searchsorted(self._cum, rng.random(), "right")),
+                                   len(self.libraries) - 1)]
+            i = int(rng.integers(len(lib)))
+            img = lib.read(i)
             if img is not None:
-                return img, self.library.name(i)
+                return img, lib.name(i)
         raise ValueError(f"{self.config.source}: 20 consecutive textures were unreadable")
 
     def _crop(self, img: np.ndarray, aspect: float, rng: np.random.Generator) -> np.ndarray:

@@ -76,7 +76,10 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="reconstruct", description="Super-resolved images from "
                                 "an event recording (shard, HDF5, ECD text, AEDAT4, raw).")
     p.add_argument("input", help="recording: .h5, events.txt or its folder, .aedat4, .raw")
-    p.add_argument("--checkpoint", required=True, help="a trained model (train's last.pt)")
+    p.add_argument("--checkpoint", help="a trained model (train's last.pt; default: the "
+                   "model shipped for --scale)")
+    p.add_argument("--scale", type=int, default=2, help="super-resolution factor of the "
+                   "shipped model to use when no --checkpoint is given (default 2)")
     p.add_argument("--out", required=True, help="folder for frame_XXXXXX.png")
     p.add_argument("--mode", choices=["main", "complementary", "duo-pass"], default="main")
     p.add_argument("--first-pass", help="main model checkpoint for --mode duo-pass")
@@ -99,11 +102,13 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
+        from model.pretrained import resolve
         from model.reconstruct import Reconstructor, plan_outputs, reconstruct
         from model.recording import open_recording
 
+        ckpt = resolve(args.checkpoint, args.scale)
         rec = open_recording(args.input, _sensor(args.sensor_size), args.sequence)
-        model = Reconstructor.load(args.checkpoint, rec.sensor_hw, args.mode, args.first_pass,
+        model = Reconstructor.load(ckpt, rec.sensor_hw, args.mode, args.first_pass,
                                    args.events_per_stack, args.device)
         plan = plan_outputs(rec, model.stacks, args.at, args.rate, args.every)
         result = reconstruct(rec, model, args.out, plan, args.mp4, not args.no_progress,
@@ -123,12 +128,20 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="evaluate", description="PSNR/SSIM/MSE/LPIPS and E_warp "
                                 "of E2SRI and classical baselines (HF, direct integration, "
                                 "complementary filter).")
-    p.add_argument("--checkpoint", required=True)
-    p.add_argument("--data", help="shards: evaluate on the checkpoint's held-out split")
+    p.add_argument("--checkpoint", help="a trained model (default: the model shipped for "
+                   "--scale)")
+    p.add_argument("--scale", type=int, default=2, help="scale of the shipped model to use "
+                   "when no --checkpoint is given (default 2)")
+    p.add_argument("--data", help="shards to evaluate on (see --split)")
+    p.add_argument("--split", choices=["val", "all"], default="val",
+                   help="val: the checkpoint's held-out sequences of --data (default); all: "
+                        "every sequence (a separate test set)")
     p.add_argument("--recording", action="append", default=[],
                    help="a recording with APS frames (repeatable)")
     p.add_argument("--out", required=True, help="folder for metrics.md/.csv and figure.png")
-    p.add_argument("--normalize", choices=["affine", "minmax", "none"], default="affine")
+    p.add_argument("--normalize", choices=["affine", "minmax", "evreal", "none"],
+                   default="affine", help="intensity normalisation before the metrics "
+                   "(model/evaluate.py; evreal: EVREAL's standard protocol)")
     p.add_argument("--every", type=int, default=1, help="every k-th frame")
     p.add_argument("--max-frames", type=int, help="per sequence")
     p.add_argument("--no-baselines", action="store_true")
@@ -138,13 +151,14 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         from model.evaluate import BASELINES, EvalOptions, evaluate
+        from model.pretrained import resolve
 
         options = EvalOptions(normalize=args.normalize, every=args.every,
                               max_frames=args.max_frames,
                               baselines=() if args.no_baselines else BASELINES,
                               temporal=not args.no_temporal)
-        rows = evaluate(args.checkpoint, args.out, args.data, args.recording, options,
-                        args.first_pass)
+        rows = evaluate(resolve(args.checkpoint, args.scale), args.out, args.data,
+                        args.recording, options, args.first_pass, args.split)
     except (ConfigError, FileNotFoundError, ValueError) as exc:
         print(f"evaluate: error: {exc}", file=sys.stderr)
         return 2
@@ -154,4 +168,35 @@ def evaluate_main(argv: list[str] | None = None) -> int:
                   f"{r['ssim']:.3f}  MSE {r['mse']:.4f}  LPIPS {r.get('lpips', float('nan')):.3f}"
                   f"  E_warp {r['ewarp']:.2f}")
     print(f"tables: {args.out}/metrics.md, {args.out}/metrics.csv; figure: {args.out}/figure.png")
+    return 0
+
+
+def export_main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="export-model", description="Ship a trained checkpoint "
+                                "as the package's default model of its scale (float16 "
+                                "weights and a SHA-256 in model/weights/manifest.json).")
+    p.add_argument("checkpoint", help="a training checkpoint (train's last.pt)")
+    p.add_argument("--data", default="", help="what it was trained on (for the manifest)")
+    p.add_argument("--recipe", default="", help="the command that trained it")
+    p.add_argument("--metrics", help="a result.json or metrics.csv to record beside it")
+    args = p.parse_args(argv)
+    try:
+        import json
+        from pathlib import Path
+
+        from model import checkpoint
+        from model.pretrained import export
+
+        state = checkpoint.load(args.checkpoint)
+        info = {"data": args.data, "recipe": args.recipe, "step": state.get("step"),
+                "cpu_hours": round(float(state.get("train_seconds") or 0) / 3600, 3)}
+        if args.metrics:
+            path = Path(args.metrics)
+            info["metrics"] = json.loads(path.read_text()).get("val") \
+                if path.suffix == ".json" else path.read_text()
+        target = export(args.checkpoint, info=info)
+    except (ConfigError, FileNotFoundError, ValueError) as exc:
+        print(f"export-model: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"shipped {target} ({target.stat().st_size / 1e6:.2f} MB)")
     return 0

@@ -49,8 +49,14 @@ class RunConfig:
         workers: DataLoader worker processes per training process.
         max_steps, max_minutes: stop early (the first that is reached).
         log_every, val_every, checkpoint_every: in optimiser steps (0 = only at the end).
-        val_batches: validation batches per evaluation (None = the whole held-out split).
-        amp, channels_last: mixed precision (bfloat16/float16) and NHWC, used on GPUs only.
+        val_batches: validation batches per evaluation (None = the whole held-out split);
+            the frames are spread evenly over all held-out sequences.
+        amp: mixed precision on GPUs (bfloat16 where supported, else float16 with a scaler).
+        cpu_amp: bfloat16 autocast on the CPU. Off by default: on the 2-core AVX512-BF16
+            machine this was developed on it made E2SRI's training steps slower, not faster
+            (bench/bench_train.py measures it).
+        channels_last: NHWC memory format (GPUs and CPUs; faster for these convs on both).
+        threads: intra-op CPU threads (None: torch's default, one per core).
         first_pass: a trained main-model checkpoint producing the central input when
             ``model.central == first_pass`` (Duo-Pass).
         flow_init: a ``task: flow`` checkpoint initialising the learned FNet
@@ -66,7 +72,9 @@ class RunConfig:
     checkpoint_every: int = 500
     val_batches: int | None = None
     amp: bool = True
+    cpu_amp: bool = False
     channels_last: bool = True
+    threads: int | None = None
     first_pass: str | None = None
     flow_init: str | None = None
 

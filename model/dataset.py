@@ -26,6 +26,7 @@ from datagen.shard import ShardReader
 from esim_lite.motion import planar_flow
 from esim_lite.pose import Pose
 from model.flow import stack_flows
+from model.input_cache import InputCache
 from model.stacking import StackConfig, stack_span_ns, stacks_around
 
 
@@ -41,6 +42,8 @@ class DataConfig:
             simulator's analytic flow between the stacks' end times: training targets for
             the learned FNet), or ``none``.
         flips: random horizontal/vertical flips in training.
+        cache: precompute SBN stacks, flow and frames once into ``<data>/cache/`` and train
+            from memory maps (model/input_cache.py); flow is then computed on whole frames.
     """
 
     stacks: StackConfig = field(default_factory=StackConfig)
@@ -48,6 +51,7 @@ class DataConfig:
     val_fraction: float = 0.1
     flow: Literal["dis", "farneback", "exact", "none"] = "dis"
     flips: bool = True
+    cache: bool = False
 
     def __post_init__(self) -> None:
         if self.crop is not None and self.crop < 16:
@@ -137,9 +141,9 @@ class ShardSamples(Dataset):
     ``index``. Shard files are opened lazily, once per process."""
 
     def __init__(self, refs: list[SampleRef], data: DataConfig, n_stacks: int, scale: int,
-                 train: bool, seed: int = 0) -> None:
+                 train: bool, seed: int = 0, cache: InputCache | None = None) -> None:
         self.refs, self.data, self.n_stacks, self.scale = refs, data, n_stacks, scale
-        self.train, self.seed, self.epoch = train, seed, 0
+        self.train, self.seed, self.epoch, self.cache = train, seed, 0, cache
         self._readers: dict[str, ShardReader] = {}
         self._pid = None
 
@@ -187,14 +191,23 @@ class ShardSamples(Dataset):
         flows[mid] = 0.0  # by definition (the projection round trip leaves ~1e-14)
         return flows
 
-    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
-        ref, cfg, s = self.refs[i], self.data, self.scale
+    def _inputs(self, ref: SampleRef):
+        """(stacks uint8[n, c, H, W], whole-frame flows float32[n, 2, H, W] or None to
+        compute them after cropping, lr, hr)."""
+        if self.cache is not None:
+            return self.cache.sample(ref)
         reader = self._reader(ref.path)
         events, built = self._stacks(reader, ref)
         stacks = np.stack([st.image for st in built])
         lr = reader.frame(ref.sequence, "lr", ref.frame)
-        hr = reader.frame(ref.sequence, f"hr_x{s}", ref.frame)
-        exact = self._exact_flows(reader, ref, events, built) if cfg.flow == "exact" else None
+        hr = reader.frame(ref.sequence, f"hr_x{self.scale}", ref.frame)
+        given = self._exact_flows(reader, ref, events, built) \
+            if self.data.flow == "exact" else None
+        return stacks, given, lr, hr
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        ref, cfg, s = self.refs[i], self.data, self.scale
+        stacks, given, lr, hr = self._inputs(ref)
         if self.train:
             rng = np.random.default_rng([self.seed, self.epoch, i])
             if cfg.crop is not None:
@@ -206,17 +219,17 @@ class ShardSamples(Dataset):
                 win = (slice(y0, y0 + cfg.crop), slice(x0, x0 + cfg.crop))
                 stacks, lr = stacks[(..., *win)], lr[win]
                 hr = hr[s * y0:s * (y0 + cfg.crop), s * x0:s * (x0 + cfg.crop)]
-                exact = None if exact is None else exact[(..., *win)]
+                given = None if given is None else given[(..., *win)]
             if cfg.flips and rng.random() < 0.5:
                 stacks, lr, hr = stacks[..., ::-1], lr[:, ::-1], hr[:, ::-1]
-                exact = None if exact is None else exact[..., ::-1] * _FLIP_X
+                given = None if given is None else given[..., ::-1] * _FLIP_X
             if cfg.flips and rng.random() < 0.5:
                 stacks, lr, hr = stacks[..., ::-1, :], lr[::-1], hr[::-1]
-                exact = None if exact is None else exact[..., ::-1, :] * _FLIP_Y
+                given = None if given is None else given[..., ::-1, :] * _FLIP_Y
         stacks = np.ascontiguousarray(stacks)
         n, _, h, w = stacks.shape
-        if exact is not None:
-            flows = np.ascontiguousarray(exact, np.float32)
+        if given is not None:  # exact, or cached whole-frame flow: cropped/flipped above
+            flows = np.ascontiguousarray(given, np.float32)
         elif cfg.flow in ("dis", "farneback"):
             flows = stack_flows(stacks, cfg.flow)
         else:

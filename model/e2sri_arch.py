@@ -48,6 +48,18 @@ class NetConfig:
         base_channels: LR feature width (paper: 256).
         hr_channels: HR feature width (paper: 64).
         c_blocks: residual blocks of RNet-C; blocks: of RNet-A, -B and -D (paper: 5).
+        state: where the recurrent state lives. ``hr`` (the paper): RNet-C and -A lift to
+            HR with transposed convolutions, RNet-B/-D and Mix work at HR, and a strided
+            conv brings the state back to LR after every side stack. ``lr`` (the CPU
+            variant): the whole recurrence, the intermediate outputs and Mix's first conv
+            stay at LR with ``base_channels``; Mix ends in a sub-pixel lift (a conv to
+            ``scale^2 x hr_channels`` channels, pixel shuffle) and one HR conv to the image.
+        fold: with ``state: lr``, the inputs are first folded space-to-depth by this factor
+            (a lossless pixel unshuffle, as FFDNet does: ``fold^2`` times the channels at
+            1/fold the size), so the whole network runs on ``fold^2`` times fewer pixels
+            with wider convolutions, which CPUs run far more efficiently than narrow ones;
+            the final lift is then by ``scale x fold``. Sizes that ``fold`` does not divide
+            are zero-padded (no events, no flow) and cropped back.
     """
 
     scale: int = 2
@@ -59,8 +71,12 @@ class NetConfig:
     hr_channels: int = 64
     c_blocks: int = 5
     blocks: int = 5
+    state: Literal["hr", "lr"] = "hr"
+    fold: int = 1
 
     def __post_init__(self) -> None:
+        if self.fold < 1 or (self.fold > 1 and self.state != "lr"):
+            raise ValueError("fold must be >= 1, and > 1 only with state: lr")
         if self.scale not in PROJECTION:
             raise ValueError(f"scale must be one of {sorted(PROJECTION)}, got {self.scale}")
         if self.n_stacks < 3 or self.n_stacks % 2 == 0:
@@ -88,15 +104,27 @@ class E2SRI(nn.Module):
         super().__init__()
         self.config = cfg = config
         b, h, s = cfg.base_channels, cfg.hr_channels, cfg.scale
-        self.efr0 = nn.Sequential(conv(cfg.central_channels, b), conv(b, b))
-        self.efr = nn.Sequential(conv(cfg.stack_channels + cfg.central_channels + 2, b),
+        f2 = cfg.fold ** 2
+        self.efr0 = nn.Sequential(conv(cfg.central_channels * f2, b), conv(b, b))
+        self.efr = nn.Sequential(conv((cfg.stack_channels + cfg.central_channels + 2) * f2, b),
                                  conv(b, b))
-        self.rnet_c = nn.Sequential(res_stack(b, cfg.c_blocks), deconv(b, h, s))
-        self.rnet_a = nn.Sequential(deconv(b, h, s), res_stack(h, cfg.blocks))
-        self.rnet_b = nn.Sequential(res_stack(h, cfg.blocks), conv(h, h))
-        self.rnet_d = nn.Sequential(res_stack(h, cfg.blocks), conv(h, h))
-        self.down = down(h, b, s)
-        self.mix = nn.Sequential(conv((cfg.n_stacks - 1) * h, h), conv(h, 1, act=False))
+        if cfg.state == "hr":
+            self.rnet_c = nn.Sequential(res_stack(b, cfg.c_blocks), deconv(b, h, s))
+            self.rnet_a = nn.Sequential(deconv(b, h, s), res_stack(h, cfg.blocks))
+            self.rnet_b = nn.Sequential(res_stack(h, cfg.blocks), conv(h, h))
+            self.rnet_d = nn.Sequential(res_stack(h, cfg.blocks), conv(h, h))
+            self.down = down(h, b, s)
+            self.mix = nn.Sequential(conv((cfg.n_stacks - 1) * h, h), conv(h, 1, act=False))
+        else:  # everything at LR; one sub-pixel lift at the end
+            self.rnet_c = res_stack(b, cfg.c_blocks)
+            self.rnet_a = res_stack(b, cfg.blocks)
+            self.rnet_b = nn.Sequential(res_stack(b, cfg.blocks), conv(b, b))
+            self.rnet_d = nn.Sequential(res_stack(b, cfg.blocks), conv(b, b))
+            self.down = nn.Identity()
+            lift = s * cfg.fold
+            self.mix = nn.Sequential(conv((cfg.n_stacks - 1) * b, b),
+                                     nn.Conv2d(b, lift * lift * h, 3, 1, 1),
+                                     nn.PixelShuffle(lift), nn.PReLU(h), conv(h, 1, act=False))
         self.flow_net = FlowNet(cfg.stack_channels) if cfg.flow == "learned" else None
 
     def forward(self, stacks: torch.Tensor, central: torch.Tensor,
@@ -110,6 +138,9 @@ class E2SRI(nn.Module):
             raise ValueError(f"central must be (B, {cfg.central_channels}, H, W) matching the "
                              f"stacks, got {tuple(central.shape)}")
         flows = self._flows(stacks, flows)
+        f, (hgt, wid) = cfg.fold, stacks.shape[-2:]
+        if f > 1:
+            stacks, central, flows = (_fold(t, f) for t in (stacks, central, flows))
         state = self.efr0(central)
         outputs = []
         for j in [k for k in range(n) if k != mid]:
@@ -119,7 +150,8 @@ class E2SRI(nn.Module):
             new_state = self.rnet_b(e) + c
             outputs.append(self.rnet_d(new_state))
             state = self.down(new_state)
-        return self.mix(torch.cat(outputs, dim=1))
+        out = self.mix(torch.cat(outputs, dim=1))
+        return out[..., :hgt * cfg.scale, :wid * cfg.scale] if f > 1 else out
 
     def _flows(self, stacks: torch.Tensor, flows: torch.Tensor | None) -> torch.Tensor:
         cfg = self.config
@@ -135,6 +167,16 @@ class E2SRI(nn.Module):
             raise ValueError(f"flows must be (B, {n}, 2, H, W) with flow='given', got "
                              f"{None if flows is None else tuple(flows.shape)}")
         return flows / FLOW_SCALE
+
+
+def _fold(x: torch.Tensor, f: int) -> torch.Tensor:
+    """Space-to-depth by ``f`` over the last two axes, zero-padding them to multiples of f:
+    ``(..., C, H, W) -> (..., C f^2, ceil(H/f), ceil(W/f))``."""
+    h, w = x.shape[-2:]
+    x = F.pad(x, (0, -w % f, 0, -h % f))
+    lead = x.shape[:-3]
+    y = F.pixel_unshuffle(x.reshape(-1, *x.shape[-3:]), f)
+    return y.reshape(*lead, *y.shape[-3:])
 
 
 #: Pixel flows are divided by this before entering the network (keeps inputs near [-1, 1]).

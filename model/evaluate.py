@@ -12,7 +12,12 @@ absolute intensity: ``affine`` (default) maps it by the least-squares scale and 
 the target, so every method is scored on structure with its best intensity mapping;
 ``minmax`` stretches both images by their 1st..99th percentiles (common, but on flat scenes
 it amplifies a flat output's small variations: on a held-out moon sequence it cut all
-event-only methods from ~25 dB to 8-11 dB); ``none`` compares raw values.
+event-only methods from ~25 dB to 8-11 dB); ``evreal`` is EVREAL's standard protocol
+(Ercan et al. 2023): outputs of methods with an absolute intensity (the network, which is
+trained to predict it, and the complementary filter, anchored to APS frames) are clipped to
+[0, 1] and compared as they are, while methods without one (HF, direct integration) have
+their output stretched by its 1st..99th percentiles; the target is never changed. ``none``
+compares raw values.
 
 Temporal stability (the paper's Table 6): ``E_warp`` between consecutive outputs with the
 flow of the ground-truth frames; ``ours+tc`` is our outputs after the blind post-process
@@ -52,7 +57,7 @@ class EvalOptions:
     ``max_frames`` per sequence; ``tc_weight``: weight of the warped previous output in the
     temporal post-process."""
 
-    normalize: Literal["affine", "minmax", "none"] = "affine"
+    normalize: Literal["affine", "minmax", "evreal", "none"] = "affine"
     every: int = 1
     max_frames: int | None = None
     baselines: tuple[str, ...] = BASELINES
@@ -61,19 +66,28 @@ class EvalOptions:
     filters: FilterConfig = field(default_factory=FilterConfig)
 
 
-def normalized(pred: np.ndarray, gt: np.ndarray, mode: str) -> tuple[np.ndarray, np.ndarray]:
+#: Methods whose output has an absolute intensity (compared as they are under ``evreal``).
+ABSOLUTE = ("ours", "ours+tc", "complementary")
+
+
+def _stretch(img: np.ndarray) -> np.ndarray:
+    lo, hi = np.percentile(img, (1, 99))
+    return ((img - lo) / max(hi - lo, 1e-6)).clip(0, 1).astype(np.float32)
+
+
+def normalized(pred: np.ndarray, gt: np.ndarray, mode: str, absolute: bool = True
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """(prediction, target) ready for the metrics under ``mode`` (see the module doc);
+    ``absolute``: whether the method predicts absolute intensity (used by ``evreal``)."""
     if mode == "none":
         return pred, gt
+    if mode == "evreal":
+        return (pred.clip(0, 1).astype(np.float32) if absolute else _stretch(pred)), gt
     if mode == "affine":
         a = np.stack([pred.ravel(), np.ones(pred.size)], 1)
         coef, *_ = np.linalg.lstsq(a, gt.ravel(), rcond=None)
         return (coef[0] * pred + coef[1]).clip(0, 1).astype(np.float32), gt
-
-    def stretch(img):
-        lo, hi = np.percentile(img, (1, 99))
-        return ((img - lo) / max(hi - lo, 1e-6)).clip(0, 1).astype(np.float32)
-
-    return stretch(pred), stretch(gt)
+    return _stretch(pred), _stretch(gt)
 
 
 def frame_metrics(pred: np.ndarray, gt: np.ndarray, lpips_net: LPIPS | None) -> dict:
@@ -159,7 +173,8 @@ def score(seq: SequenceOutputs, scale: int, options: EvalOptions, lpips_net) -> 
                 preds = [_down(im, scale) for im in images] if proto == "lr" else images
             else:  # baselines work at the sensor size
                 preds = [upsample(im, scale) for im in images] if proto == "hr" else images
-            pairs = [normalized(p, g, options.normalize) for p, g in zip(preds, targets)]
+            pairs = [normalized(p, g, options.normalize, method in ABSOLUTE)
+                     for p, g in zip(preds, targets)]
             per_frame = [frame_metrics(p, g, lpips_net) for p, g in pairs]
             row = {"sequence": seq.name, "protocol": proto, "method": method,
                    "frames": len(preds)}
@@ -174,9 +189,13 @@ def score(seq: SequenceOutputs, scale: int, options: EvalOptions, lpips_net) -> 
 
 def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
              recordings: list[str] | None = None, options: EvalOptions | None = None,
-             first_pass: str | None = None) -> list[dict]:
-    """Evaluate on the held-out shards and/or real recordings with APS frames; writes
-    ``metrics.csv``, ``metrics.md`` and ``figure.png`` into ``out``; returns the rows."""
+             first_pass: str | None = None, split: Literal["val", "all"] = "val"
+             ) -> list[dict]:
+    """Evaluate on shards and/or real recordings with APS frames; writes ``metrics.csv``,
+    ``metrics.md`` and ``figure.png`` into ``out``; returns the rows.
+
+    ``split``: ``val`` scores the held-out sequences of ``data`` by the checkpoint's own
+    split (its validation set), ``all`` every sequence (a separate test set)."""
     options = options or EvalOptions()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -193,10 +212,13 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
     lpips_net = LPIPS()
     sequences: list[SequenceOutputs] = []
     if data is not None:
-        _, val = index_samples(find_shards(data), cfg.data, cfg.model.n_stacks, cfg.model.scale)
+        train, val = index_samples(find_shards(data), cfg.data, cfg.model.n_stacks,
+                                   cfg.model.scale)
+        if split == "all":
+            val = train + val
         if not val:
             raise ValueError(f"{data}: no held-out sequences (val_fraction "
-                             f"{cfg.data.val_fraction})")
+                             f"{cfg.data.val_fraction}); --split all scores every sequence")
         by_seq: dict[tuple[str, str], list[int]] = {}
         for ref in val:
             by_seq.setdefault((ref.path, ref.sequence), []).append(ref.frame)

@@ -26,8 +26,10 @@ from tqdm import tqdm
 from esim_lite.dataconf import to_yaml
 from model import checkpoint, e2sri_arch
 from model.config import OptimConfig, TrainConfig
+from model.curves import ValHistory
 from model.dataset import ShardSamples, find_shards, index_samples
 from model.e2sri_arch import E2SRI, count_parameters
+from model.input_cache import CacheSpec, InputCache
 from model.losses import SimilarityLoss
 from model.metrics import mse, psnr, ssim
 
@@ -145,12 +147,22 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
     cfg, run = config, config.run
     torch.manual_seed(run.seed)
 
+    if run.threads:
+        torch.set_num_threads(run.threads)
     shards = find_shards(data)
     train_refs, val_refs = index_samples(shards, cfg.data, cfg.model.n_stacks, cfg.model.scale)
     sensor_hw = sensor_of(shards[0])
+    if run.val_batches is not None:  # a fixed sample spread over every held-out sequence
+        val_refs = spread(val_refs, run.val_batches * cfg.optim.batch_size)
+    cache = None
+    if cfg.data.cache:
+        spec = CacheSpec(cfg.data.stacks, cfg.data.flow, cfg.model.n_stacks, cfg.model.scale)
+        cache = InputCache.build(shards, train_refs + val_refs, spec,
+                                 workers=max(1, os.cpu_count() or 1) if env.main else 1)
     train_set = ShardSamples(train_refs, cfg.data, cfg.model.n_stacks, cfg.model.scale, True,
-                             run.seed)
-    val_set = ShardSamples(val_refs, cfg.data, cfg.model.n_stacks, cfg.model.scale, False)
+                             run.seed, cache)
+    val_set = ShardSamples(val_refs, cfg.data, cfg.model.n_stacks, cfg.model.scale, False,
+                           cache=cache)
     steps_per_epoch = len(epoch_batches(len(train_set), cfg.optim.batch_size, run.seed, 0,
                                         env.rank, env.world))
     if steps_per_epoch == 0:
@@ -159,7 +171,7 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
 
     net = E2SRI(cfg.model).to(env.device)
     cuda = env.device.type == "cuda"
-    if cuda and run.channels_last:
+    if run.channels_last:
         net = net.to(memory_format=torch.channels_last)
     model = torch.nn.parallel.DistributedDataParallel(net) if env.world > 1 else net
     first_pass = None
@@ -180,10 +192,10 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer,
                                                   lr_lambda(cfg.optim, steps_per_epoch))
     amp_dtype = (torch.bfloat16 if torch.cuda.is_bf16_supported() else torch.float16) \
-        if cuda and run.amp else None
+        if cuda and run.amp else (torch.bfloat16 if not cuda and run.cpu_amp else None)
     scaler = torch.amp.GradScaler("cuda") if amp_dtype == torch.float16 else None
 
-    step, epoch, offset = 0, 0, 0
+    step, epoch, offset, seconds_before = 0, 0, 0, 0.0
     last = out / "last.pt"
     if resume and last.is_file():
         state = checkpoint.load(last)
@@ -191,6 +203,7 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
         optimizer.load_state_dict(state["optimizer"])
         scheduler.load_state_dict(state["scheduler"])
         step, epoch, offset = state["step"], state["epoch"], state["batch_in_epoch"]
+        seconds_before = float(state.get("train_seconds", 0.0))
         checkpoint.set_rng_state(state["rng"])
         log.info("resumed from %s at step %d", last, step)
     config_yaml = to_yaml(cfg)
@@ -200,7 +213,20 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
             checkpoint.save(path, model=net.state_dict(), optimizer=optimizer.state_dict(),
                             scheduler=scheduler.state_dict(), step=step, epoch=epoch,
                             batch_in_epoch=offset, rng=checkpoint.rng_state(), config=config_yaml,
-                            net=checkpoint.net_args(net), sensor_hw=sensor_hw, **extra)
+                            net=checkpoint.net_args(net), sensor_hw=sensor_hw,
+                            train_seconds=seconds_before + time.perf_counter() - start,
+                            **extra)
+
+    def validate() -> tuple[dict[str, float], list]:
+        metrics, examples = evaluate(net, val_loader, cfg, env.device, first_pass,
+                                     criterion.lpips, run.val_batches)
+        for k, v in metrics.items():
+            writer.add_scalar(f"val/{k}", v, step)
+        history.add(step, (seconds_before + time.perf_counter() - start) / 3600, metrics)
+        history.save()
+        history.plot(out / "val_curve.png", f"validation: {len(val_set)} held-out frames, "
+                     f"whole {sensor_hw[1]}x{sensor_hw[0]} -> x{cfg.model.scale}")
+        return metrics, examples
 
     writer = None
     if env.main:
@@ -209,6 +235,7 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
         from torch.utils.tensorboard import SummaryWriter
 
         writer = SummaryWriter(str(out / "tb"))
+        history = ValHistory(out / "val_history.csv")
     total = cfg.optim.epochs * steps_per_epoch
     if run.max_steps is not None:
         total = min(total, run.max_steps)
@@ -229,7 +256,8 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
         loader = DataLoader(train_set, batch_sampler=batches[offset:], **loader_args)
         for batch in loader:
             batch = {k: v.to(env.device, non_blocking=True) for k, v in batch.items()}
-            with torch.autocast("cuda", dtype=amp_dtype) if amp_dtype else nullcontext():
+            with torch.autocast(env.device.type, dtype=amp_dtype) if amp_dtype \
+                    else nullcontext():
                 output = model(batch["stacks"], central_input(batch, cfg, first_pass),
                                batch["flows"])
             loss, parts = criterion(output.float(), batch["hr"])
@@ -267,10 +295,7 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
             if run.checkpoint_every and step % run.checkpoint_every == 0 and not stop:
                 save(last)
             if env.main and run.val_every and step % run.val_every == 0 and not stop and val_set:
-                metrics, _ = evaluate(net, val_loader, cfg, env.device, first_pass,
-                                      criterion.lpips, run.val_batches)
-                for k, v in metrics.items():
-                    writer.add_scalar(f"val/{k}", v, step)
+                validate()
             if stop:
                 break
     bar.close()
@@ -278,13 +303,12 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
     result = {"step": step, "epoch": epoch, "parameters": count_parameters(net),
               "weights_sha256": weights_digest(net),
               "train_samples": len(train_set), "val_samples": len(val_set),
-              "seconds": time.perf_counter() - start}
+              "seconds": time.perf_counter() - start,
+              "train_hours": (seconds_before + time.perf_counter() - start) / 3600}
     if env.main and len(val_set):
-        metrics, examples = evaluate(net, val_loader, cfg, env.device, first_pass,
-                                     criterion.lpips, run.val_batches)
+        metrics, examples = validate()
         result["val"] = metrics
-        for k, v in metrics.items():
-            writer.add_scalar(f"val/{k}", v, step)
+        result["curve_png"] = str(out / "val_curve.png")
         title = (f"step {step}: " + ", ".join(f"{k} {v:.4f}" for k, v in metrics.items()))
         result["png"] = str(save_examples(out / "val_examples.png", examples, title))
     if env.main:
@@ -293,6 +317,13 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
     if env.world > 1:
         dist.barrier()
     return result
+
+
+def spread(items: list, n: int) -> list:
+    """``n`` items evenly spaced over ``items`` (all of them if there are no more than n)."""
+    if len(items) <= n:
+        return items
+    return [items[int(i * len(items) / n)] for i in range(n)]
 
 
 def sensor_of(shard: Path) -> tuple[int, int]:

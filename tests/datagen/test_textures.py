@@ -85,3 +85,46 @@ def test_flat_photos_are_redrawn_and_an_all_flat_source_is_an_error(tmp_path):
     with pytest.raises(ValueError, match="flatter than min_detail"):
         TextureSampler(TextureConfig(source=str(tmp_path), procedural_fraction=0.0)).sample(
             np.random.default_rng(0), 1.0, 64)
+
+
+def test_train_and_test_parts_are_disjoint_and_fixed_by_name(tmp_path):
+    rng = np.random.default_rng(0)
+    for i in range(40):
+        write_png(tmp_path / f"img_{i:02d}.png", rng)
+    train = set(ImageLibrary(tmp_path, split="train", test_fraction=0.25).keys())
+    test = set(ImageLibrary(tmp_path, split="test", test_fraction=0.25).keys())
+    assert train.isdisjoint(test) and len(train | test) == 40
+    assert 3 <= len(test) <= 20  # about a quarter
+    # adding images to the source never moves an existing image to the other part
+    for i in range(40, 60):
+        write_png(tmp_path / f"img_{i:02d}.png", rng)
+    grown = set(ImageLibrary(tmp_path, split="test", test_fraction=0.25).keys())
+    assert test <= grown and not (grown & train)
+    # a sampler over the test part only ever draws test images
+    sampler = TextureSampler(TextureConfig(source=str(tmp_path), split="test",
+                                           test_fraction=0.25, procedural_fraction=0.0,
+                                           min_detail=0.0))
+    names = {sampler.sample(np.random.default_rng(s), 1.0, 64)[1] for s in range(30)}
+    assert {n.rsplit("/", 1)[-1] for n in names} <= grown
+
+
+def test_material_maps_are_excluded_and_sources_are_drawn_by_weight(tmp_path):
+    rng = np.random.default_rng(1)
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir()
+    b.mkdir()
+    with zipfile.ZipFile(a / "pack.pk3", "w") as zf:
+        for name in ("wall.png", "wall_nm.png", "wall_sm.png", "wall_gm.png", "floor.jpg"):
+            ok, buf = cv2.imencode(name[-4:], (rng.random((40, 50)) * 255).astype(np.uint8))
+            zf.writestr(f"textures/{name}", buf.tobytes())
+    assert sorted(ImageLibrary(a).keys()) == ["textures/floor.jpg", "textures/wall.png"]
+    assert len(ImageLibrary(a, exclude=())) == 5
+    write_png(b / "photo.png", rng)
+    cfg = TextureConfig(source=(str(a), str(b)), source_weights=(0.0, 1.0),
+                        procedural_fraction=0.0, min_detail=0.0)
+    names = {TextureSampler(cfg).sample(np.random.default_rng(s), 1.0, 64)[1]
+             for s in range(20)}
+    assert names == {str(b / "photo.png")}
+    with pytest.raises(ValueError, match="source_weights must be 2"):
+        TextureConfig(source=(str(a), str(b)), source_weights=(1.0,))
+

@@ -37,13 +37,14 @@ def test_every_config_builds_and_gives_the_right_shape(path):
         assert 9e6 < count_parameters(net) < 11e6  # "about 10M parameters at x2"
 
 
+@pytest.mark.parametrize("state", ["hr", "lr"])
 @pytest.mark.parametrize("scale", [2, 4])
 @pytest.mark.parametrize("n_stacks", [3, 7])
 @pytest.mark.parametrize("central, flow", [("stack", "given"), ("aps", "learned"),
                                            ("first_pass", "none")])
-def test_every_parameter_gets_a_gradient(scale, n_stacks, central, flow):
+def test_every_parameter_gets_a_gradient(scale, n_stacks, central, flow, state):
     cfg = NetConfig(scale=scale, n_stacks=n_stacks, central=central, flow=flow,
-                    base_channels=8, hr_channels=4, c_blocks=1, blocks=1)
+                    base_channels=8, hr_channels=4, c_blocks=1, blocks=1, state=state)
     torch.manual_seed(0)
     net = E2SRI(cfg)
     out = net(*inputs(cfg))
@@ -56,6 +57,32 @@ def test_every_parameter_gets_a_gradient(scale, n_stacks, central, flow):
         # (at width 4 that happens by chance); every convolution must get one.
         if name not in prelu:
             assert p.grad.abs().sum() > 0, name
+
+
+@pytest.mark.parametrize("scale", [2, 4])
+def test_the_lr_state_variant_computes_at_lr_until_the_last_lift(scale):
+    """The CPU variant's point: every convolution but the final one sees LR feature maps,
+    while the paper's layout runs its HR branches at HR; the multiply-adds show it."""
+    def conv_macs(cfg):
+        net, sizes = E2SRI(cfg), []
+
+        def hook(mod, inp, out):  # a transposed conv spreads a kernel from each input pixel
+            src = inp[0] if isinstance(mod, torch.nn.ConvTranspose2d) else out
+            sizes.append((out.shape[-2:], src.shape[-2] * src.shape[-1] * mod.weight.numel()))
+        for m in net.modules():
+            if isinstance(m, (torch.nn.Conv2d, torch.nn.ConvTranspose2d)):
+                m.register_forward_hook(hook)
+        with torch.no_grad():
+            net(*inputs(cfg, b=1, h=16, w=16))
+        return sizes
+
+    kw = dict(scale=scale, base_channels=16, hr_channels=8, c_blocks=1, blocks=1)
+    lr = conv_macs(NetConfig(state="lr", **kw))
+    hr = conv_macs(NetConfig(state="hr", **kw))
+    assert all(tuple(s) == (16, 16) for s, _ in lr[:-1])
+    assert tuple(lr[-1][0]) == (16 * scale, 16 * scale)
+    assert sum(tuple(s) != (16, 16) for s, _ in hr) > 5
+    assert sum(m for _, m in lr) < sum(m for _, m in hr)
 
 
 def test_input_checks_name_the_shapes():

@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# Install the training texture sources and link them under data/textures/ (re-run safely).
+#   data/textures/ufoai/       Debian's ufoai-textures: 2,720 material textures in one .pk3
+#                              (its normal/specular/gloss maps are excluded by datagen)
+#   data/textures/wallpapers/  the raster images of Debian's gnome-backgrounds and
+#                              ukui-wallpapers (SVGs are skipped: datagen reads raster images)
+# Only these packages (plus scikit-image's photos and the procedural patterns) are training
+# sources. Every other image package is kept for held-out testing: this script links the
+# files these two packages own (dpkg -L), never a whole shared folder such as
+# /usr/share/backgrounds, where other packages install their images too.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PACKAGES="ufoai-textures gnome-backgrounds ukui-wallpapers"
+
+missing=""
+for p in $PACKAGES; do dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"; done
+if [ -n "$missing" ]; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    apt-get install -y -q $missing >/dev/null 2>&1 \
+      || { apt-get update -q >/dev/null 2>&1 && apt-get install -y -q $missing >/dev/null; }
+  else
+    echo "install_textures: need root and apt-get to install:$missing" >&2
+    exit 1
+  fi
+fi
+
+rm -rf data/textures.tmp && mkdir -p data/textures.tmp/ufoai data/textures.tmp/wallpapers
+dpkg -L ufoai-textures | grep -E '\.pk3$' | while read -r f; do
+  ln -s "$f" data/textures.tmp/ufoai/
+done
+for p in gnome-backgrounds ukui-wallpapers; do
+  dpkg -L "$p" | grep -iE '\.(png|jpe?g|webp|bmp|tiff?)$' | while read -r f; do
+    ln -s "$f" "data/textures.tmp/wallpapers/${p}__$(basename "$f")"
+  done
+done
+rm -rf data/textures && mv data/textures.tmp data/textures
+echo "install_textures: $(ls data/textures/ufoai | wc -l) archive(s) in data/textures/ufoai," \
+     "$(ls data/textures/wallpapers | wc -l) image(s) in data/textures/wallpapers"
