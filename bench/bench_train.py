@@ -1,6 +1,10 @@
 """Training throughput on this machine: the model's consumption and the data pipeline's supply.
 
 Run: .venv/bin/python bench/bench_train.py [--data SHARDS] [--quick]
+     .venv/bin/python bench/bench_train.py --options [--data SHARDS] [--steps N]
+--options: end-to-end samples/s of real training steps fed by the real data pipeline, for
+each throughput option in turn (today's path; the input cache instead of data workers;
+channels_last; bfloat16 autocast; torch.compile; the CPU variant), at 2 threads and 1.
 Model: samples/s of a full training step (forward, L1 + 0.01 LPIPS, backward, Adam) at each
 config's crop, on inputs of the right shape (compute does not depend on the values); batch 8
 for the small config, batch 1 for the full-size ones (x4 with 7 stacks adds 4.8 GB per
@@ -79,10 +83,83 @@ def data_rate(cfg: TrainConfig, shards: Path, batches: int) -> float:
                 return n / (time.perf_counter() - start)
 
 
+def pipeline_rate(cfg: TrainConfig, shards: Path, steps: int, *, cache: bool, workers: int,
+                  channels_last: bool, bf16: bool, compile_: bool = False) -> float:
+    """Samples/s of whole training steps fed by the real data pipeline (DataLoader over
+    shards, or over the input cache), the way train() runs them."""
+    from model.input_cache import CacheSpec, InputCache
+
+    refs, _ = index_samples(find_shards(shards), cfg.data, cfg.model.n_stacks, cfg.model.scale)
+    store = InputCache.build(find_shards(shards), refs, CacheSpec(
+        cfg.data.stacks, cfg.data.flow, cfg.model.n_stacks, cfg.model.scale), 2) \
+        if cache else None
+    ds = ShardSamples(refs, cfg.data, cfg.model.n_stacks, cfg.model.scale, True, 0, store)
+    loader = DataLoader(ds, batch_size=cfg.optim.batch_size, shuffle=True,
+                        num_workers=workers, persistent_workers=workers > 0)
+    torch.manual_seed(0)
+    net = E2SRI(cfg.model)
+    if channels_last:
+        net = net.to(memory_format=torch.channels_last)
+    model = torch.compile(net) if compile_ else net
+    loss_fn = SimilarityLoss(cfg.loss.lpips_weight)
+    opt = torch.optim.Adam(net.parameters(), lr=1e-4)
+    done, start, warm = 0, None, 3  # the first steps warm up workers, allocators, compiler
+    while True:
+        for batch in loader:
+            with torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+                out = model(batch["stacks"], batch["stacks"][:, cfg.model.n_stacks // 2],
+                            batch["flows"])
+            loss, _ = loss_fn(out.float(), batch["hr"])
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+            warm -= 1
+            if warm == 0:
+                start = time.perf_counter()
+            elif warm < 0:
+                done += len(batch["hr"])
+                if done >= steps * cfg.optim.batch_size:
+                    return done / (time.perf_counter() - start)
+
+
+OPTIONS = [  # (label, config, cache, workers, channels_last, bf16, compile)
+    ("today: small config (select/hr32), 2 data workers, NCHW float32", "select/hr32",
+     False, 2, False, False, False),
+    ("+ input cache (no data workers)", "select/hr32", True, 0, False, False, False),
+    ("+ channels_last", "select/hr32", True, 0, True, False, False),
+    ("+ bfloat16 autocast", "select/hr32", True, 0, True, True, False),
+    ("+ torch.compile (float32)", "select/hr32", True, 0, True, False, True),
+    ("CPU variant (train_x2_cpu): cache, channels_last, float32", "train_x2_cpu", True, 0,
+     True, False, False),
+    ("CPU variant + bfloat16 autocast", "train_x2_cpu", True, 0, True, True, False),
+]
+
+
+def options_table(shards: Path, steps: int, threads: int) -> None:
+    torch.set_num_threads(threads)
+    print(f"\nEnd-to-end training throughput, {threads} thread(s) ({steps} steps each):\n")
+    print("| option | config | samples/s | vs today |")
+    print("|---|---|---|---|")
+    base = None
+    for label, name, cache, workers, cl, bf16, comp in OPTIONS:
+        cfg = load_yaml(TrainConfig, ROOT / "configs" / f"{name}.yaml")
+        try:
+            rate = pipeline_rate(cfg, shards, steps, cache=cache, workers=workers,
+                                 channels_last=cl, bf16=bf16, compile_=comp)
+        except Exception as exc:  # e.g. torch.compile without a working compiler
+            print(f"| {label} | {name} | failed: {type(exc).__name__} | - |", flush=True)
+            continue
+        base = base or rate
+        print(f"| {label} | {name} | {rate:.1f} | {rate / base:.2f}x |", flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--data", help="shards to read (default: simulate a small x2 set)")
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--options", action="store_true",
+                        help="only the end-to-end table of throughput options")
+    parser.add_argument("--steps", type=int, default=30)
     args = parser.parse_args(argv)
     torch.set_num_threads(2)
     print(f"# {' '.join(['python'] + sys.argv)}; torch {torch.__version__}, "
@@ -94,6 +171,10 @@ def main(argv: list[str] | None = None) -> int:
                             "--out", str(shards), "--no-progress", "--set",
                             "simulation.render.backend=homography"], check=True,
                            stdout=subprocess.DEVNULL)
+        if args.options:
+            for threads in (2, 1):
+                options_table(shards, args.steps, threads)
+            return 0
         print("| config | params | batch x crop | model samples/s | RSS growth MB | "
               "data samples/s (2 workers) |")
         print("|---|---|---|---|---|---|")

@@ -73,6 +73,8 @@ def build_parser() -> argparse.ArgumentParser:
 def _generate(args: argparse.Namespace) -> int:
     from datagen.generate import generate
 
+    if args.workers < 1:
+        raise ValueError(f"--workers must be at least 1, got {args.workers}")
     overrides = list(args.set)
     if args.scale:
         scales = [s.strip() for s in args.scale.split(",")]

@@ -28,6 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from datagen.config import DatagenConfig
+from datagen.lock import FolderLock, stale_temporary
 from datagen.sampling import sample_sequence
 from datagen.shard import SCHEMA_VERSION, ShardWriter
 from datagen.textures import TextureSampler
@@ -244,15 +245,25 @@ def generate(config: DatagenConfig, out: str | Path, n_seq: int, seed: int = 0,
     textures = TextureSampler(config.textures)  # fails here on a bad texture path
     config = _resolve_variant(config)
     config_yaml = to_yaml(config)
+    with FolderLock(out, seed, config_yaml, shard_index, num_shards):
+        return _generate_locked(out, plans, config, config_yaml, seed, workers, textures,
+                                show_progress)
+
+
+def _generate_locked(out: Path, plans: list[ShardPlan], config: DatagenConfig,
+                     config_yaml: str, seed: int, workers: int, textures: TextureSampler,
+                     show_progress: bool) -> GenerateSummary:
+    """The body of :func:`generate`, run while this process holds the folder's lock."""
     states = {p.index: shard_state(p, config_yaml, seed) for p in plans}
     foreign = [p.path for p in plans if states[p.index] == "foreign"]
     if foreign:
         raise ValueError(f"{foreign[0]}: a complete shard made with a different config or "
                          f"seed is in the way; write this dataset to another --out folder")
     todo = [p for p in plans if states[p.index] == "todo"]
-    for p in plans:  # leftovers of interrupted runs of this job's shards
+    for p in plans:  # leftovers of interrupted runs (never a live process's file)
         for stale in p.path.parent.glob(p.path.name + ".tmp-*"):
-            stale.unlink(missing_ok=True)
+            if stale_temporary(stale):
+                stale.unlink(missing_ok=True)
         if states[p.index] == "todo":
             p.path.unlink(missing_ok=True)
     start = time.perf_counter()

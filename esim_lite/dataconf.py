@@ -187,6 +187,9 @@ def load_yaml(cls: type[T], path: str | Path, overrides: list[str] | None = None
         data = yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as exc:
         raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{path}: the top level must be a mapping of sections (key: "
+                          f"value), not a {type(data).__name__}")
     data = apply_overrides(data, overrides or [], source=str(path))
     return from_mapping(cls, data, source=str(path))
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import logging
 import sys
+from pathlib import Path
 
 from esim_lite.dataconf import ConfigError, apply_overrides, from_mapping, load_yaml
 from model.config import TrainConfig
@@ -61,6 +62,14 @@ if __name__ == "__main__":
     sys.exit(main())
 
 
+def _check_out_folder(out: str) -> None:
+    """Outputs are checked before any work: ``out`` must be a folder or not exist yet."""
+    path = Path(out)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"{path}: exists and is not a folder (--out names the folder the "
+                         f"frames are written into)")
+
+
 def _sensor(text: str | None) -> tuple[int, int] | None:
     if not text:
         return None
@@ -106,6 +115,7 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
         from model.reconstruct import Reconstructor, plan_outputs, reconstruct
         from model.recording import open_recording
 
+        _check_out_folder(args.out)
         ckpt = resolve(args.checkpoint, args.scale)
         rec = open_recording(args.input, _sensor(args.sensor_size), args.sequence)
         model = Reconstructor.load(ckpt, rec.sensor_hw, args.mode, args.first_pass,
@@ -137,7 +147,9 @@ def evaluate_main(argv: list[str] | None = None) -> int:
                    help="val: the checkpoint's held-out sequences of --data (default); all: "
                         "every sequence (a separate test set)")
     p.add_argument("--recording", action="append", default=[],
-                   help="a recording with APS frames (repeatable)")
+                   help="a recording (repeatable); with APS frames it is scored against "
+                        "them, without it appears in the figure only")
+    p.add_argument("--sensor-size", help="WxH of --recording files that do not store it")
     p.add_argument("--out", required=True, help="folder for metrics.md/.csv and figure.png")
     p.add_argument("--normalize", choices=["affine", "minmax", "evreal", "none"],
                    default="affine", help="intensity normalisation before the metrics "
@@ -153,12 +165,14 @@ def evaluate_main(argv: list[str] | None = None) -> int:
         from model.evaluate import BASELINES, EvalOptions, evaluate
         from model.pretrained import resolve
 
+        _check_out_folder(args.out)
         options = EvalOptions(normalize=args.normalize, every=args.every,
                               max_frames=args.max_frames,
                               baselines=() if args.no_baselines else BASELINES,
                               temporal=not args.no_temporal)
         rows = evaluate(resolve(args.checkpoint, args.scale), args.out, args.data,
-                        args.recording, options, args.first_pass, args.split)
+                        args.recording, options, args.first_pass, args.split,
+                        _sensor(args.sensor_size))
     except (ConfigError, FileNotFoundError, ValueError) as exc:
         print(f"evaluate: error: {exc}", file=sys.stderr)
         return 2
@@ -182,7 +196,6 @@ def export_main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     try:
         import json
-        from pathlib import Path
 
         from model import checkpoint
         from model.pretrained import export

@@ -43,7 +43,7 @@ from model.baselines import EventFilter, FilterConfig, upsample
 from model.dataset import find_shards, index_samples
 from model.lpips import LPIPS
 from model.metrics import mse, psnr, ssim
-from model.reconstruct import Reconstructor
+from model.reconstruct import OutputPlan, Reconstructor, output_times
 from model.recording import Recording, open_recording
 from model.temporal import reference_motion, temporally_consistent, warp_error
 
@@ -152,6 +152,34 @@ def run_sequence(recording: Recording, model: Reconstructor, frame_ids: list[int
     return out
 
 
+def unscored_sequence(recording: Recording, model: Reconstructor, options: EvalOptions,
+                      name: str, limit: int = 64) -> SequenceOutputs:
+    """Without APS frames there is nothing to score against: outputs of the network and of
+    HF at the end of every stack (the first ``limit``), for the figure only."""
+    chunk_size = 1_000_000
+    window = model.event_window(recording.events(chunk_size), recording.sensor_hw, chunk_size)
+    hf = EventFilter("hf", recording.sensor_hw, options.filters)
+    out = SequenceOutputs(name, {"ours": [], "hf": []}, [], None, [])
+    fed = window.pin = 0
+    plan = OutputPlan("events", model.stacks.events_per_stack)
+    for t, _ in output_times(plan, recording, window):
+        given = model.stacks_at(window, t)
+        ours, _ = model.run(given.stacks, None)
+        hf.add_events(window.slice(fed, given.anchor)[0])
+        fed = window.pin = given.anchor
+        window.forget(min(fed, given.first))
+        out.images["ours"].append(ours)
+        out.images["hf"].append(hf.image(t))
+        out.event_images.append(event_image(given.events.slice(*given.central)))
+        if len(out.images["ours"]) >= limit:
+            break
+    if not out.images["ours"]:
+        raise ValueError(f"{recording.path}: fewer events than one output needs "
+                         f"({model.net.config.n_stacks} stacks of "
+                         f"{model.stacks.events_per_stack})")
+    return out
+
+
 def _down(img: np.ndarray, scale: int) -> np.ndarray:
     h, w = img.shape
     return cv2.resize(img, (w // scale, h // scale), interpolation=cv2.INTER_AREA)
@@ -189,13 +217,15 @@ def score(seq: SequenceOutputs, scale: int, options: EvalOptions, lpips_net) -> 
 
 def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
              recordings: list[str] | None = None, options: EvalOptions | None = None,
-             first_pass: str | None = None, split: Literal["val", "all"] = "val"
-             ) -> list[dict]:
+             first_pass: str | None = None, split: Literal["val", "all"] = "val",
+             sensor_hw: tuple[int, int] | None = None) -> list[dict]:
     """Evaluate on shards and/or real recordings with APS frames; writes ``metrics.csv``,
     ``metrics.md`` and ``figure.png`` into ``out``; returns the rows.
 
     ``split``: ``val`` scores the held-out sequences of ``data`` by the checkpoint's own
-    split (its validation set), ``all`` every sequence (a separate test set)."""
+    split (its validation set), ``all`` every sequence (a separate test set). Recordings
+    without APS frames (``sensor_hw`` for formats that do not store it) are not scored:
+    they appear in the figure as events | HF | ours."""
     options = options or EvalOptions()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -231,15 +261,17 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
             sequences.append(run_sequence(rec, model, frames, hr, options,
                                           f"{Path(path).name}/{seq}"))
     for path in recordings or []:
-        rec = open_recording(path)
-        if rec.frames is None:
-            raise ValueError(f"{path}: no APS frames to evaluate against")
+        rec = open_recording(path, sensor_hw)
         model = model_for(rec.sensor_hw)
+        if rec.frames is None:  # nothing to score against: shown in the figure only
+            sequences.append(unscored_sequence(rec, model, options, str(path)))
+            continue
         ids = list(range(1, len(rec.frames)))[::options.every][:options.max_frames]
         sequences.append(run_sequence(rec, model, ids, None, options, str(path)))
     if not sequences:
         raise ValueError("nothing to evaluate: give --data and/or --recording")
-    rows = [r for s in sequences for r in score(s, cfg.model.scale, options, lpips_net)]
+    rows = [r for s in sequences if s.lr_targets
+            for r in score(s, cfg.model.scale, options, lpips_net)]
     rows += average_rows(rows)
     write_tables(rows, out, options)
     write_figure(sequences, out / "figure.png", cfg.model.scale)
@@ -302,16 +334,19 @@ def write_figure(sequences: list[SequenceOutputs], path: Path, scale: int) -> Pa
     rows = []
     for seq in sequences:
         k = len(seq.images["ours"]) // 2
-        target = seq.hr_targets[k] if seq.hr_targets is not None else seq.lr_targets[k]
         ours = seq.images["ours"][k]
-        if seq.hr_targets is None:
-            ours = _down(ours, scale)
         base = seq.images.get("hf", [ours])[k]
-        if seq.hr_targets is not None:
+        if seq.hr_targets is not None or not seq.lr_targets:  # compared at HR
+            target = seq.hr_targets[k] if seq.hr_targets is not None else None
             base = upsample(base, scale)
+        else:  # against APS frames at the sensor size
+            target, ours = seq.lr_targets[k], _down(ours, scale)
         row = [(seq.event_images[k], f"events: {seq.name}")]
-        cy, cx = _detail_centre(target)
-        for img, label in ((base, "HF"), (ours, "ours"), (target, "ground truth")):
+        cy, cx = _detail_centre(target if target is not None else ours)
+        panels = [(base, "HF"), (ours, "ours")]
+        if target is not None:
+            panels.append((target, "ground truth"))
+        for img, label in panels:
             img = normalized(img, img, "minmax")[0]
             h, w = img.shape
             y0 = int(np.clip(cy * h - h // 8, 0, h - h // 4))

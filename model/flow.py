@@ -32,6 +32,12 @@ def classical_flow(a: np.ndarray, b: np.ndarray,
                    preset: int = cv2.DISOPTICAL_FLOW_PRESET_FAST) -> np.ndarray:
     """float32[H, W, 2] flow (dx, dy) in pixels from gray image ``a`` to ``b`` (uint8);
     ``preset`` is DIS's speed/quality preset."""
+    h, w = a.shape
+    if min(h, w) < 16:  # DIS needs >= 12 pixels; tiny sensors are padded, then cropped
+        pad = ((0, max(0, 16 - h)), (0, max(0, 16 - w)))
+        big = classical_flow(np.pad(a, pad, mode="edge"), np.pad(b, pad, mode="edge"),
+                             method, preset)
+        return np.ascontiguousarray(big[:h, :w])
     if method == "dis":
         dis = _DIS.get(preset)
         if dis is None:

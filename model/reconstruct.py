@@ -269,7 +269,6 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
     ``temporal``: weight of the blind temporal-consistency post-process (None: off); it
     needs only the previous frame, so memory stays bounded."""
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     window = model.event_window(recording.events(chunk), recording.sensor_hw, chunk)
     seconds = {"stacking": 0.0, "flow": 0.0, "network": 0.0}
     paths, times, previous = [], [], None
@@ -289,6 +288,8 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
             if previous is not None:
                 image = consistency_step(previous[0], previous[1], raw, temporal)
             previous = (raw, image)
+        if not paths:  # the folder appears with the first frame, never empty
+            out.mkdir(parents=True, exist_ok=True)
         path = out / f"frame_{len(paths):06d}.png"
         cv2.imwrite(str(path), np.round(image * 255).astype(np.uint8))
         paths.append(path)
@@ -297,6 +298,11 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
         if limit is not None and len(paths) >= limit:
             break
     bar.close()
+    if not paths:
+        raise ValueError(f"{recording.path}: too few events for one output ({plan.at}: the "
+                         f"first needs {plan.every_events if plan.at == 'events' else 1:,} "
+                         f"event(s) and a stack of {model.stacks.events_per_stack:,}); "
+                         f"nothing written")
     (out / "timestamps.txt").write_text("".join(f"{i} {t * 1e-9:.9f}\n"
                                                 for i, t in enumerate(times)))
     if mp4 and paths:

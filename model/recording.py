@@ -106,17 +106,33 @@ def open_recording(path: str | Path, sensor_hw: tuple[int, int] | None = None,
                      f".aedat4, .raw or an ECD folder)")
 
 
-def _events(x, y, t_ns, p_on, hw, source: Path) -> Events:
-    """Events from a decoder's arrays; coordinates that int16 cannot hold are an error
-    naming ``source`` (the cast would wrap them onto the sensor)."""
-    x, y = np.asarray(x), np.asarray(y)
+def _events(x, y, t_ns, p, hw, source: Path, offset: int = 0) -> Events:
+    """Events from a decoder's arrays (``offset``: global index of the first), checked
+    before any cast could hide a problem; errors name ``source`` and the event:
+    non-finite timestamps, non-integer coordinates or ones int16 cannot hold (the cast
+    would truncate or wrap them onto the sensor), polarities other than 0/1 or -1/1."""
+    x, y, t_ns, p = (np.asarray(v) for v in (x, y, t_ns, p))
+    if t_ns.dtype.kind == "f":
+        bad = np.flatnonzero(~np.isfinite(t_ns))
+        if len(bad):
+            raise ValueError(f"{source}: event {offset + bad[0]} has timestamp "
+                             f"{t_ns[bad[0]] * 1e-9} (not a finite number)")
     for name, v in (("x", x), ("y", y)):
+        if v.dtype.kind == "f":
+            bad = np.flatnonzero(v != np.round(v))
+            if len(bad):
+                raise ValueError(f"{source}: event {offset + bad[0]} has {name} = "
+                                 f"{v[bad[0]]} (pixel coordinates must be whole numbers)")
         if len(v) and (v.min() < -2**15 or v.max() >= 2**15):
             raise ValueError(f"{source}: coordinates outside the {hw[1]}x{hw[0]} sensor "
                              f"({name} {v.min()}..{v.max()})")
-    return Events(np.asarray(x, np.int16), np.asarray(y, np.int16),
-                  np.asarray(t_ns, np.int64), np.where(np.asarray(p_on) > 0, 1, -1).astype(np.int8),
-                  hw)
+    if p.dtype != np.bool_:
+        bad = np.flatnonzero((p != 0) & (p != 1) & (p != -1))
+        if len(bad):
+            raise ValueError(f"{source}: event {offset + bad[0]} has polarity "
+                             f"{p[bad[0]]}: polarity must be 0/1 (or -1/1)")
+    return Events(x.astype(np.int16), y.astype(np.int16), t_ns.astype(np.int64),
+                  np.where(p > 0, 1, -1).astype(np.int8), hw)
 
 
 def _gray(pixels: np.ndarray) -> np.ndarray:
@@ -189,7 +205,7 @@ def _open_hdf5(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
             for start in range(0, n, size):
                 sl = slice(start, min(start + size, n))
                 yield _events(ev["xs"][sl], ev["ys"][sl], np.round(ev["ts"][sl] * 1e9),
-                              ev["ps"][sl], hw, path)
+                              ev["ps"][sl], hw, path, start)
 
     return Recording(path, "hdf5", hw, frames, chunks)
 
@@ -207,8 +223,9 @@ def _hdf5_sensor(f: h5py.File, path: Path) -> tuple[int, int]:
 
 @numba.njit(cache=True)
 def _parse_text(buf, t_ns, xs, ys, ps):
-    """Parse lines ``t x y p`` from uint8 ``buf`` (complete lines). Times in seconds are
-    turned into integer nanoseconds digit by digit (exact for up to 9 decimals). Returns
+    """Parse lines ``t x y p`` from uint8 ``buf`` (complete lines). Times in seconds (plain
+    or scientific notation) are turned into integer nanoseconds digit by digit: exact for up
+    to 9 decimals, rounded to the nearest nanosecond beyond. Returns
     (events parsed, index of the first bad line or -1, lines seen); ``#`` lines and blank
     lines are skipped."""
     n, i, size, line = 0, 0, len(buf), 0
@@ -227,20 +244,35 @@ def _parse_text(buf, t_ns, xs, ys, ps):
             continue
         if i >= size:
             break
-        # time: digits [. digits]
-        sec, frac, fdigits, ok = 0, 0, 0, False
+        # time: digits [. digits] [e|E [+|-] digits], kept as mantissa m and decimal
+        # exponent so that t = m 10^(exp - frac_digits) s is turned into ns exactly
+        m, fdigits, exp, ok = 0, 0, 0, False
         while i < size and 48 <= buf[i] <= 57:
-            sec = sec * 10 + (buf[i] - 48)
+            m = m * 10 + (buf[i] - 48)
             i += 1
             ok = True
         if i < size and buf[i] == 46:
             i += 1
             while i < size and 48 <= buf[i] <= 57:
-                if fdigits < 9:
-                    frac = frac * 10 + (buf[i] - 48)
+                if fdigits < 12:  # beyond a picosecond nothing survives the rounding
+                    m = m * 10 + (buf[i] - 48)
                     fdigits += 1
                 i += 1
                 ok = True
+        if ok and i < size and (buf[i] == 101 or buf[i] == 69):  # e/E: scientific notation
+            i += 1
+            eneg = False
+            if i < size and (buf[i] == 45 or buf[i] == 43):
+                eneg = buf[i] == 45
+                i += 1
+            got = False
+            while i < size and 48 <= buf[i] <= 57:
+                exp = exp * 10 + (buf[i] - 48)
+                i += 1
+                got = True
+            ok = ok and got and exp <= 18
+            if eneg:
+                exp = -exp
         vals = np.zeros(3, np.int64)
         for k in range(3):
             while i < size and (buf[i] == 32 or buf[i] == 9 or buf[i] == 44):
@@ -261,9 +293,17 @@ def _parse_text(buf, t_ns, xs, ys, ps):
             i += 1
         if not ok or (i < size and buf[i] != 10):
             return n, line, line
-        for _ in range(fdigits, 9):
-            frac *= 10
-        t_ns[n] = sec * 1_000_000_000 + frac
+        p10 = exp - fdigits + 9
+        if p10 >= 0:
+            t = m
+            for _ in range(p10):
+                t *= 10
+        else:  # round to the nearest nanosecond
+            q = 1
+            for _ in range(-p10):
+                q *= 10
+            t = (m + q // 2) // q
+        t_ns[n] = t
         xs[n], ys[n], ps[n] = vals[0], vals[1], vals[2]
         n += 1
         line += 1
@@ -325,10 +365,10 @@ def _open_text(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
     hw = sensor_hw or (frames.hw if frames is not None else _text_extent(events_file))
 
     def chunks(size: int) -> Iterator[Events]:
+        done = 0
         for t, x, y, p in _text_chunks(events_file, size):
-            if len(p) and not np.all((p == 0) | (p == 1) | (p == -1)):
-                raise ValueError(f"{events_file}: polarity must be 0/1 (or -1/1)")
-            yield _events(x, y, t, p, hw, events_file)
+            yield _events(x, y, t, p, hw, events_file, done)
+            done += len(t)
 
     return Recording(events_file, "text", hw, frames, chunks)
 

@@ -199,6 +199,7 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
     last = out / "last.pt"
     if resume and last.is_file():
         state = checkpoint.load(last)
+        check_resumable(cfg, state, last)
         net.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
         scheduler.load_state_dict(state["scheduler"])
@@ -317,6 +318,36 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
     if env.world > 1:
         dist.barrier()
     return result
+
+
+#: Settings a resumed run may change: how it runs, not what it learns or in which order.
+RESUMABLE_CHANGES = ("run.workers", "run.max_steps", "run.max_minutes", "run.log_every",
+                     "run.val_every", "run.checkpoint_every", "run.val_batches", "run.amp",
+                     "run.cpu_amp", "run.channels_last", "run.threads")
+
+
+def _flat(mapping, prefix: str = "") -> dict:
+    out = {}
+    for k, v in mapping.items():
+        key = f"{prefix}{k}"
+        out.update(_flat(v, key + ".") if isinstance(v, dict) else {key: v})
+    return out
+
+
+def check_resumable(config: TrainConfig, state: dict, path: Path) -> None:
+    """Refuse to resume ``path`` under a config that changes what is learnt or the batch
+    plan (network, data, loss, optimiser, seed): the message names the differing keys."""
+    from esim_lite.dataconf import load_yaml_text, to_mapping
+
+    stored = _flat(to_mapping(load_yaml_text(TrainConfig, state["config"], source=str(path))))
+    now = _flat(to_mapping(config))
+    differ = sorted(k for k in set(stored) | set(now)
+                    if stored.get(k) != now.get(k) and k not in RESUMABLE_CHANGES)
+    if differ:
+        shown = ", ".join(f"{k} ({stored.get(k)!r} -> {now.get(k)!r})" for k in differ[:6])
+        raise ValueError(f"{path}: cannot resume with a different {shown}"
+                         f"{' ...' if len(differ) > 6 else ''}; use the checkpoint's config "
+                         f"({path.parent / 'config.yaml'}) or a new --out")
 
 
 def spread(items: list, n: int) -> list:

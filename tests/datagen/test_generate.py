@@ -170,6 +170,9 @@ def test_cli_errors_name_the_problem(tmp_path, capsys):
     assert "--scale must be 2, 4 or 2,4" in capsys.readouterr().err
     assert main(["inspect", str(tmp_path / "missing.h5")]) == 2
     assert "missing.h5: no such file" in capsys.readouterr().err
+    assert main(args + ["--out", str(tmp_path / "d"), "--workers", "0"]) == 2
+    assert "--workers must be at least 1, got 0" in capsys.readouterr().err
+    assert not (tmp_path / "d").exists()
 
 
 def test_full_disk_is_reported_and_leaves_nothing_behind(tmp_path, monkeypatch):
@@ -179,7 +182,8 @@ def test_full_disk_is_reported_and_leaves_nothing_behind(tmp_path, monkeypatch):
     monkeypatch.setattr("datagen.shard.ShardWriter.append_events", full)
     with pytest.raises(gen.DiskFullError, match="disk full while writing"):
         gen.generate(tiny(), tmp_path, n_seq=1, show_progress=False)
-    assert list(tmp_path.iterdir()) == []
+    # no data file at all; only the writer lock's bookkeeping folder
+    assert [p.name for p in tmp_path.iterdir()] == [".datagen"]
 
 
 def test_reader_rejects_incomplete_and_foreign_files(tmp_path):
@@ -218,3 +222,80 @@ def test_worker_count_is_not_part_of_the_dataset_identity(tmp_path):
     (tmp_path / "shard_00001.h5").unlink()
     again = gen.generate(tiny(), tmp_path, n_seq=4, seed=2, workers=1, show_progress=False)
     assert (again.shards_written, again.shards_skipped) == (1, 1)
+
+
+def _hold_lock(folder: Path, seed: int, job: tuple[int, int] = (0, 1)) -> subprocess.Popen:
+    """A second live process holding the folder's writer lock (as a running datagen does)."""
+    code = ("import sys, time; from datagen.lock import FolderLock\n"
+            f"with FolderLock({str(folder)!r}, {seed}, 'cfg', {job[0]}, {job[1]}):\n"
+            "    print('held', flush=True); time.sleep(60)\n")
+    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True,
+                            cwd=ROOT)
+    assert proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def test_a_second_writer_is_refused_and_a_killed_one_leaves_no_stuck_lock(tmp_path, capsys):
+    out = tmp_path / "ds"
+    other = _hold_lock(out, seed=5)
+    try:
+        args = ["generate", "--config", str(TINY), "--n-seq", "2", "--no-progress",
+                "--workers", "1", "--out", str(out)]
+        assert main(args) == 2
+        err = capsys.readouterr().err
+        assert f"{out}: another datagen is writing to this folder: pid {other.pid}" in err
+        assert "Traceback" not in err and not list(out.glob("shard_*"))
+    finally:
+        other.send_signal(signal.SIGKILL)
+        other.wait()
+    assert main(args) == 0  # the kernel dropped the dead process's lock
+    assert len(list(out.glob("shard_*.h5"))) == 1
+
+
+def test_array_jobs_share_a_folder_only_within_one_dataset(tmp_path, capsys):
+    other = _hold_lock(tmp_path, seed=5, job=(0, 2))  # job 0 of 2 is running, no shard yet
+    try:
+        args = ["generate", "--config", str(TINY), "--n-seq", "4", "--no-progress",
+                "--workers", "1", "--out", str(tmp_path), "--num-shards", "2"]
+        assert main(args + ["--shard-index", "0", "--seed", "5"]) == 2  # the same job
+        assert "another datagen is writing" in capsys.readouterr().err
+        assert main(args + ["--shard-index", "1", "--seed", "6"]) == 2  # another dataset
+        assert "holds the dataset of seed 5" in capsys.readouterr().err
+        assert main(["generate", "--config", str(TINY), "--n-seq", "4", "--no-progress",
+                     "--out", str(tmp_path)]) == 2  # a plain run waits for the array
+        assert "another datagen is writing" in capsys.readouterr().err
+    finally:
+        other.kill()
+        other.wait()
+    assert not list(tmp_path.glob("shard_*"))
+
+
+def test_a_folder_holds_one_dataset(tmp_path, capsys):
+    args = ["generate", "--config", str(TINY), "--no-progress", "--workers", "1",
+            "--out", str(tmp_path)]
+    assert main(args + ["--n-seq", "2", "--seed", "5"]) == 0
+    # different shards (3rd sequence: shard 1) of another seed: refused, not mixed in
+    assert main(args + ["--n-seq", "4", "--seed", "6"]) == 2
+    assert "holds the dataset of seed 5" in capsys.readouterr().err
+    assert len(list(tmp_path.glob("shard_*.h5"))) == 1
+    assert main(args + ["--n-seq", "4", "--seed", "5"]) == 0  # growing it is fine
+    assert len(list(tmp_path.glob("shard_*.h5"))) == 2
+
+
+def test_only_dead_processes_temporary_files_are_removed(tmp_path):
+    from datagen.lock import stale_temporary
+
+    sleeper = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    try:
+        live = tmp_path / f"shard_00000.h5.tmp-{sleeper.pid}"
+        gone = tmp_path / f"shard_00000.h5.tmp-{dead.pid}"
+        assert not stale_temporary(live) and stale_temporary(gone)
+        live.write_bytes(b"being written")
+        gone.write_bytes(b"left behind")
+        gen.generate(tiny(), tmp_path, n_seq=1, show_progress=False)
+        assert live.is_file() and not gone.exists()
+    finally:
+        sleeper.kill()
+        sleeper.wait()

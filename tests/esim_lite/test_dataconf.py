@@ -41,6 +41,14 @@ def test_bad_configs_name_the_file_and_key(tmp_path, text, key, problem):
     assert str(path) in str(err.value) and key in str(err.value) and problem in str(err.value)
 
 
+def test_a_top_level_that_is_not_a_mapping_is_named(tmp_path):
+    path = tmp_path / "list.yaml"
+    path.write_text("- camera\n- width: 3\n")
+    with pytest.raises(ConfigError, match=r"list.yaml: the top level must be a mapping .* "
+                                          r"not a list"):
+        load_yaml(SimulationConfig, path, ["camera.width=4"])
+
+
 def test_missing_file_and_bad_override(tmp_path):
     with pytest.raises(FileNotFoundError, match="nope.yaml"):
         load_yaml(SimulationConfig, tmp_path / "nope.yaml")

@@ -29,6 +29,17 @@ def test_classical_flow_finds_a_known_shift():
     assert flows.shape == (3, 2, 64, 64) and np.all(flows[1] == 0)
 
 
+def test_classical_flow_on_a_sensor_smaller_than_dis_accepts():
+    """DIS refuses images under 12 pixels; tiny sensors get a flow of their own size (a
+    smooth blob moving +1 px in x stays +1 px after the padding)."""
+    yy, xx = np.mgrid[0:10, 0:9]
+    img = (120 + 100 * np.exp(-((xx - 4) ** 2 + (yy - 5) ** 2) / 6)).astype(np.uint8)
+    moved = (120 + 100 * np.exp(-((xx - 5) ** 2 + (yy - 5) ** 2) / 6)).astype(np.uint8)
+    flow = classical_flow(img, moved)
+    assert flow.shape == (10, 9, 2) and np.isfinite(flow).all()
+    assert np.median(flow[3:8, 3:7, 0]) > 0.3
+
+
 def test_exact_flows_follow_crops_and_flips(tiny_shards):
     data = DataConfig(stacks=StackConfig(events_per_channel=100), crop=32, flow="exact")
     refs, _ = index_samples(find_shards(tiny_shards), data, 3, 2)

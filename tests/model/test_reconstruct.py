@@ -98,6 +98,21 @@ def test_cli_errors(tiny_checkpoint, tmp_path, capsys):
     assert reconstruct_main([str(bad), "--checkpoint", str(tiny_checkpoint), "--out",
                              str(tmp_path / "o"), "--sensor-size", "ten"]) == 2
     assert "--sensor-size must look like" in capsys.readouterr().err
+    # --out naming a file: refused before the model runs, the file untouched
+    blocker = tmp_path / "taken.png"
+    blocker.write_bytes(b"mine")
+    assert reconstruct_main([str(bad), "--checkpoint", str(tiny_checkpoint), "--out",
+                             str(blocker), "--sensor-size", "10x10"]) == 2
+    assert "taken.png: exists and is not a folder" in capsys.readouterr().err
+    assert blocker.read_bytes() == b"mine"
+    # too few events for one stack: an error, not "wrote 0 frame(s)", and nothing written
+    few = tmp_path / "few.txt"
+    few.write_text("".join(f"{1 + k * 1e-4:.6f} {k % 10} {k % 7} {k % 2}\n" for k in range(50)))
+    assert reconstruct_main([str(few), "--checkpoint", str(tiny_checkpoint), "--out",
+                             str(tmp_path / "f"), "--sensor-size", "10x10",
+                             "--events-per-stack", "300", "--no-progress"]) == 2
+    assert "too few events for one output" in capsys.readouterr().err
+    assert not (tmp_path / "f").exists() or not any((tmp_path / "f").iterdir())
 
 
 def test_reading_far_ahead_keeps_memory_bounded_unless_pinned():

@@ -173,3 +173,41 @@ def test_coordinates_int16_cannot_hold_are_an_error_not_a_wrap(tmp_path):
         f.create_dataset("events/xs", data=xs)
     with pytest.raises(ValueError, match=r"wide.h5: coordinates outside the 64x48 sensor"):
         open_recording(path).read_all()
+
+
+@pytest.mark.parametrize("field, value, problem", [
+    ("ps", 5, r"event 40 has polarity 5: polarity must be 0/1"),
+    ("xs", 3.7, r"event 40 has x = 3.7 \(pixel coordinates must be whole numbers\)"),
+    ("ts", np.nan, r"event 40 has timestamp nan \(not a finite number\)"),
+    ("ts", np.inf, r"event 40 has timestamp inf \(not a finite number\)"),
+])
+def test_hdf5_values_a_cast_would_hide_are_refused(tmp_path, field, value, problem):
+    """Polarity 5 read as ON, x + 0.7 truncated, NaN reported as time going back: each is
+    named for what it is, with the event's index, and nothing is read past it."""
+    ev = events(n=100, hw=(48, 64))
+    path = tmp_path / "bad.h5"
+    write_hdf5(path, ev, with_frames=False)
+    with h5py.File(path, "a") as f:
+        data = f[f"events/{field}"][:]
+        data = data.astype(np.float64) if isinstance(value, float) else data
+        data[40] = value
+        del f[f"events/{field}"]
+        f.create_dataset(f"events/{field}", data=data)
+    with pytest.raises(ValueError, match=problem) as err:
+        open_recording(path).read_all()
+    assert "bad.h5" in str(err.value)
+
+
+def test_text_timestamps_in_scientific_notation(tmp_path):
+    path = tmp_path / "events.txt"
+    path.write_text("2e-3 1 2 1\n1.5e-3 3 4 0\n")  # parsed, so time order is checked
+    with pytest.raises(ValueError, match="go back in time at event 1"):
+        open_recording(path, sensor_hw=(8, 8)).read_all()
+    path.write_text("1.5e-3 1 2 1\n2.25E-3 3 4 0\n3e-3 0 0 1\n1.0000000005e0 1 1 1\n"
+                    "1.25e+2 2 2 0\n")
+    ev = open_recording(path, sensor_hw=(8, 8)).read_all()
+    np.testing.assert_array_equal(ev.t_ns, [1_500_000, 2_250_000, 3_000_000, 1_000_000_001,
+                                            125_000_000_000])
+    path.write_text("1.5e 1 2 1\n")
+    with pytest.raises(ValueError, match="line 1 is not 't x y p'"):
+        open_recording(path, sensor_hw=(8, 8)).read_all()

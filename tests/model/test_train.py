@@ -191,6 +191,24 @@ def test_cli(tiny_shards, tmp_path, capsys):
     assert "no hr_x4 frames" in capsys.readouterr().err
 
 
+def test_resume_refuses_a_different_network_or_batch_plan(tiny_shards, tmp_path):
+    from model.train import train
+
+    out = tmp_path / "r"
+    train(tiny_config("run.max_steps=2"), tiny_shards, out, show_progress=False)
+    with pytest.raises(ValueError, match=r"cannot resume with a different model.base_channels "
+                                         r"\(8 -> 16\)"):
+        train(tiny_config("run.max_steps=4", "model.base_channels=16"), tiny_shards, out,
+              resume=True, show_progress=False)
+    with pytest.raises(ValueError, match=r"optim.batch_size \(2 -> 3\)"):
+        train(tiny_config("run.max_steps=4", "optim.batch_size=3"), tiny_shards, out,
+              resume=True, show_progress=False)
+    # how the run runs may change: more steps, other logging
+    result = train(tiny_config("run.max_steps=3", "run.log_every=5"), tiny_shards, out,
+                   resume=True, show_progress=False)
+    assert result["step"] == 3
+
+
 def test_stacking_by_time_feeds_the_same_pipeline(tiny_shards, tmp_path):
     data = DataConfig(stacks=StackConfig(method="sbt", channels=3, channel_ms=2.0), crop=32)
     refs, _ = index_samples(find_shards(tiny_shards), data, 3, 2)
