@@ -178,10 +178,10 @@ def main(argv: list[str] | None = None) -> int:
         print("| config | params | batch x crop | model samples/s | RSS growth MB | "
               "data samples/s (2 workers) |")
         print("|---|---|---|---|---|---|")
-        names = ["train_small", "train_x2_3s", "train_x2_7s", "train_x4_3s", "train_x4_7s"]
+        names = ["select/hr32", "train_x2_3s", "train_x2_7s", "train_x4_3s", "train_x4_7s"]
         for name in names[:2] if args.quick else names:
             cfg = load_yaml(TrainConfig, ROOT / "configs" / f"{name}.yaml")
-            small = name == "train_small"
+            small = name == "select/hr32"
             batch = cfg.optim.batch_size if small else 1  # batch 8 of x4 7S: ~39 GB
             rate, params, grown = model_rate(cfg, 5 if small else 2, batch)
             if cfg.model.scale == 2:

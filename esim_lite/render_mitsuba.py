@@ -2,8 +2,13 @@
 
 Noise-free by construction, because render noise would become fake events:
 - the texture is loaded raw (linear values, no sRGB decoding), bilinear, ``clamp`` wrap;
-- a box pixel filter and a *non-jittered* stratified sampler with ``s*s`` samples put
-  exactly the sub-pixel grid of :mod:`esim_lite.render_homography` in every pixel;
+- the film has ``s`` times the camera's resolution along each axis and one sample at the
+  centre of each of its pixels, so the samples are exactly the ``s x s`` sub-pixel grid of
+  :mod:`esim_lite.render_homography`; they are averaged into camera pixels here, in a fixed
+  order. (With ``s*s`` samples per film pixel instead, drjit's LLVM backend, which splits a
+  launch into blocks of 16,384 work items, sums the samples of pixels that straddle two
+  blocks in thread-timing order: renders differed by 1-2 ulp from run to run, enough to
+  move an event by nanoseconds. One sample per film pixel has nothing to sum.)
 - the ``direct`` integrator samples only the BSDF under a constant unit environment, so a
   diffuse plane returns its albedo with zero variance;
 - a fixed seed, and the scene is built once; per frame only ``sensor.to_world`` changes
@@ -171,11 +176,12 @@ class MitsubaRenderer:
             "principal_point_offset_y": -(cam.cy + 0.5 - cam.height / 2) / cam.height,
             "near_clip": 1e-3, "far_clip": 1e4,
             "to_world": mi.ScalarTransform4f(np.eye(4).tolist()),
-            "film": {"type": "hdrfilm", "width": cam.width, "height": cam.height,
-                     "rfilter": {"type": "box"}, "pixel_format": "luminance",
-                     "sample_border": False},
-            "sampler": {"type": "stratified", "sample_count": supersample**2,
-                        "jitter": False, "seed": 0},
+            # s x s film pixels per camera pixel, one centred sample each (see the module
+            # doc); the principal point offset is a fraction of the film, so it is unchanged
+            "film": {"type": "hdrfilm", "width": cam.width * supersample,
+                     "height": cam.height * supersample, "rfilter": {"type": "box"},
+                     "pixel_format": "luminance", "sample_border": False},
+            "sampler": {"type": "stratified", "sample_count": 1, "jitter": False, "seed": 0},
         }
 
     def render(self, camera: str, pose: Pose) -> np.ndarray:
@@ -187,7 +193,15 @@ class MitsubaRenderer:
         params["sensor.to_world"] = mi.ScalarTransform4f(
             (pose.matrix() @ _OPENCV_TO_MITSUBA).tolist())
         params.update()
-        return np.array(self._render[camera](), dtype=np.float32)[..., 0]
+        fine = np.array(self._render[camera](), dtype=np.float32)[..., 0]
+        s = self.supersample[camera]
+        if s == 1:
+            return fine
+        total = np.zeros((fine.shape[0] // s, fine.shape[1] // s), np.float64)
+        for i in range(s):  # the s x s samples of every pixel, summed in one fixed order
+            for j in range(s):
+                total += fine[i::s, j::s]
+        return (total / (s * s)).astype(np.float32)
 
     def close(self) -> None:
         self._render.clear()

@@ -70,3 +70,33 @@ def test_evaluate_on_held_out_shards_and_a_recording(tiny_shards, tiny_checkpoin
     assert cv2.imread(str(out / "figure.png")).shape[0] > 100
     assert evaluate_main(["--checkpoint", str(tiny_checkpoint), "--out", str(out)]) == 2
     assert "nothing to evaluate" in capsys.readouterr().err
+
+
+def test_evreal_protocol_compares_absolute_methods_as_they_are():
+    gt = moving_scene(1)[0]
+    pred = 1.3 * gt - 0.1  # out of [0, 1] at both ends
+    ours, target = normalized(pred, gt, "evreal", absolute=True)
+    np.testing.assert_array_equal(ours, pred.clip(0, 1).astype(np.float32))
+    assert target is gt
+    hf, target = normalized(0.01 * gt + 5, gt, "evreal", absolute=False)  # no absolute scale
+    assert target is gt and hf.min() == 0.0 and hf.max() == 1.0
+    np.testing.assert_allclose(hf, normalized(gt, gt, "minmax")[0], atol=1e-4)
+
+
+def test_split_all_scores_every_sequence_and_frameless_recordings_go_to_the_figure(
+        tiny_shards, tiny_checkpoint, tmp_path):
+    from model.evaluate import EvalOptions, evaluate
+    from tests.model.test_recording import write_text
+
+    opts = EvalOptions(baselines=("hf",), temporal=False)
+    val = evaluate(tiny_checkpoint, tmp_path / "v", tiny_shards, options=opts)
+    every = evaluate(tiny_checkpoint, tmp_path / "a", tiny_shards, options=opts, split="all")
+    seqs = {r["sequence"] for r in every if r["sequence"] != "average"}
+    assert len(seqs) == 4 > len({r["sequence"] for r in val if r["sequence"] != "average"})
+    folder = tmp_path / "no_frames"
+    write_text(folder, events(n=6000, hw=(48, 64)), with_frames=False)
+    rows = evaluate(tiny_checkpoint, tmp_path / "f", recordings=[str(folder)], options=opts,
+                    sensor_hw=(48, 64))
+    assert rows == []  # nothing to score against ...
+    figure = cv2.imread(str(tmp_path / "f" / "figure.png"))
+    assert figure is not None and figure.shape[0] > 100  # ... but shown: events | HF | ours
