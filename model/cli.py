@@ -202,7 +202,7 @@ def export_main(argv: list[str] | None = None) -> int:
 
         state = checkpoint.load(args.checkpoint)
         info = {"data": args.data, "recipe": args.recipe, "step": state.get("step"),
-                "cpu_hours": round(float(state.get("train_seconds") or 0) / 3600, 3)}
+                "train_hours_2_cores": round(float(state.get("train_seconds") or 0) / 3600, 3)}
         if args.metrics:
             path = Path(args.metrics)
             info["metrics"] = json.loads(path.read_text()).get("val") \
