@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import cv2
@@ -11,6 +9,7 @@ import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
 from datagen.shard import ShardReader
+from esim_lite.atomic import atomic_path
 from esim_lite.events import Events
 from model.stacking import StackConfig, sbn_stack
 
@@ -72,15 +71,8 @@ def contact_sheet(rows: list[list[tuple[np.ndarray, str]]], title: str, height: 
 def write_png(path: str | Path, rgb: np.ndarray) -> Path:
     """Write uint8 RGB ``rgb`` to ``path`` atomically (temporary name, then rename)."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp.png", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path, ".tmp.png") as tmp:
         Image.fromarray(rgb).save(tmp, format="PNG")
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return path
 
 

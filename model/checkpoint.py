@@ -3,14 +3,13 @@ the resolved config, written atomically (temporary name, then rename)."""
 
 from __future__ import annotations
 
-import os
 import random
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from esim_lite.atomic import atomic_path
 from esim_lite.dataconf import from_mapping, load_yaml_text, to_mapping
 from model.config import TrainConfig
 from model.e2sri_arch import E2SRI, NetConfig
@@ -35,15 +34,8 @@ def set_rng_state(state: dict[str, Any]) -> None:
 def save(path: str | Path, **payload: Any) -> Path:
     """``torch.save(payload)`` to ``path`` atomically."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path) as tmp:
         torch.save(payload, tmp)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return path
 
 

@@ -9,22 +9,11 @@ from __future__ import annotations
 
 import csv
 import io
-import os
-import tempfile
 from pathlib import Path
 
+from esim_lite.atomic import write_bytes
+
 COLUMNS = ("step", "hours", "psnr", "ssim", "mse", "lpips")
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    fd, tmp = tempfile.mkstemp(prefix=path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 class ValHistory:
@@ -51,7 +40,7 @@ class ValHistory:
         for r in self.rows:
             writer.writerow({k: (int(r[k]) if k == "step" else f"{r[k]:.6g}")
                              for k in COLUMNS if k in r})
-        _atomic_write(self.path, buf.getvalue().encode())
+        write_bytes(self.path, buf.getvalue().encode())
 
     def plot(self, png: str | Path, title: str = "validation") -> Path:
         """PSNR, SSIM and LPIPS against the step, one panel each."""
@@ -77,5 +66,5 @@ class ValHistory:
         buf = io.BytesIO()
         fig.savefig(buf, format="png", dpi=110)
         plt.close(fig)
-        _atomic_write(png, buf.getvalue())
+        write_bytes(png, buf.getvalue())
         return png

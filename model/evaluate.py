@@ -27,6 +27,7 @@ flow of the ground-truth frames; ``ours+tc`` is our outputs after the blind post
 from __future__ import annotations
 
 import csv
+import io
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,6 +39,7 @@ import torch
 
 from datagen.preview import contact_sheet, event_image, gray_to_rgb, write_png
 from datagen.shard import ShardReader
+from esim_lite.atomic import write_text
 from model import checkpoint
 from model.baselines import EventFilter, FilterConfig, upsample
 from model.dataset import find_shards, index_samples
@@ -296,11 +298,12 @@ def average_rows(rows: list[dict]) -> list[dict]:
 
 def write_tables(rows: list[dict], out: Path, options: EvalOptions) -> None:
     cols = ["sequence", "protocol", "method", "frames", "psnr", "ssim", "mse", "lpips", "ewarp"]
-    with open(out / "metrics.csv", "w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=cols)
-        w.writeheader()
-        for r in rows:
-            w.writerow({k: r.get(k, "") for k in cols})
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: r.get(k, "") for k in cols})
+    write_text(out / "metrics.csv", buf.getvalue())
     lines = [f"Normalisation: {options.normalize}. PSNR dB, SSIM, MSE, LPIPS (alex), "
              f"E_warp x1e-3 (lower is better except PSNR and SSIM).", ""]
     for proto in ("hr", "lr"):
@@ -317,7 +320,7 @@ def write_tables(rows: list[dict], out: Path, options: EvalOptions) -> None:
             lines.append(f"| {r['sequence']} | {r['method']} | {r['frames']} | "
                          + " | ".join(cells) + " |")
         lines.append("")
-    (out / "metrics.md").write_text("\n".join(lines))
+    write_text(out / "metrics.md", "\n".join(lines))
 
 
 def _detail_centre(img: np.ndarray) -> tuple[float, float]:

@@ -13,13 +13,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import torch
 
+from esim_lite.atomic import atomic_path, write_text
 from model import checkpoint
 
 WEIGHTS = Path(__file__).resolve().parent / "weights"
@@ -97,21 +96,11 @@ def export(source: str | Path, scale: int | None = None, folder: Path = WEIGHTS,
                       for k, v in net.state_dict().items()},
             "config": state["config"], "net": state["net"], "sensor_hw": state["sensor_hw"],
             "step": state.get("step"), "train_seconds": state.get("train_seconds")}
-    folder.mkdir(parents=True, exist_ok=True)
     target = folder / file_name(s)
-    fd, tmp = tempfile.mkstemp(prefix=target.name + ".", suffix=".tmp", dir=folder)
-    os.close(fd)
-    try:
+    with atomic_path(target) as tmp:
         torch.save(slim, tmp)
-        os.replace(tmp, target)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     entries = manifest(folder)
     entries[target.name] = {"scale": s, "sha256": sha256(target),
                             "bytes": target.stat().st_size, **(info or {})}
-    fd, tmp = tempfile.mkstemp(prefix=MANIFEST + ".", suffix=".tmp", dir=folder)
-    with os.fdopen(fd, "w") as f:
-        f.write(json.dumps(entries, indent=2, sort_keys=True) + "\n")
-    os.replace(tmp, folder / MANIFEST)
+    write_text(folder / MANIFEST, json.dumps(entries, indent=2, sort_keys=True) + "\n")
     return target

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from esim_lite.atomic import atomic_path, write_text
 from esim_lite.events import Events
 from model import checkpoint
 from model.dataset import stack_to_input
@@ -291,7 +292,8 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
         if not paths:  # the folder appears with the first frame, never empty
             out.mkdir(parents=True, exist_ok=True)
         path = out / f"frame_{len(paths):06d}.png"
-        cv2.imwrite(str(path), np.round(image * 255).astype(np.uint8))
+        with atomic_path(path, ".tmp.png") as tmp:
+            cv2.imwrite(str(tmp), np.round(image * 255).astype(np.uint8))
         paths.append(path)
         times.append(t)
         bar.update(1)
@@ -303,8 +305,8 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
                          f"first needs {plan.every_events if plan.at == 'events' else 1:,} "
                          f"event(s) and a stack of {model.stacks.events_per_stack:,}); "
                          f"nothing written")
-    (out / "timestamps.txt").write_text("".join(f"{i} {t * 1e-9:.9f}\n"
-                                                for i, t in enumerate(times)))
+    write_text(out / "timestamps.txt",
+               "".join(f"{i} {t * 1e-9:.9f}\n" for i, t in enumerate(times)))
     if mp4 and paths:
         write_mp4(paths, out / "video.mp4", times)
     return ReconstructResult(paths, times, seconds)

@@ -23,6 +23,7 @@ import torch.distributed as dist
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
+from esim_lite.atomic import write_text
 from esim_lite.dataconf import to_yaml
 from model import checkpoint, e2sri_arch
 from model.config import OptimConfig, TrainConfig
@@ -226,13 +227,14 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
         history.add(step, (seconds_before + time.perf_counter() - start) / 3600, metrics)
         history.save()
         history.plot(out / "val_curve.png", f"validation: {len(val_set)} held-out frames, "
-                     f"whole {sensor_hw[1]}x{sensor_hw[0]} -> x{cfg.model.scale}")
+                     f"whole {sensor_hw[1]}x{sensor_hw[0]} -> x{cfg.model.scale}, outputs "
+                     f"clipped to [0, 1], no intensity fit")
         return metrics, examples
 
     writer = None
     if env.main:
         out.mkdir(parents=True, exist_ok=True)
-        (out / "config.yaml").write_text(config_yaml)
+        write_text(out / "config.yaml", config_yaml)
         from torch.utils.tensorboard import SummaryWriter
 
         writer = SummaryWriter(str(out / "tb"))
@@ -314,7 +316,7 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
         result["png"] = str(save_examples(out / "val_examples.png", examples, title))
     if env.main:
         writer.close()
-        (out / "result.json").write_text(json.dumps(result, indent=2, default=float))
+        write_text(out / "result.json", json.dumps(result, indent=2, default=float))
     if env.world > 1:
         dist.barrier()
     return result

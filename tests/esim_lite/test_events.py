@@ -36,3 +36,29 @@ def test_concatenate_slice_and_counts():
     img = c.count_image()
     assert img.shape == (2, 4, 8) and img[0].sum() == 5 and img[1].sum() == 0
     assert len(Events.concatenate([], (4, 8))) == 0
+
+
+def test_atomic_writes_replace_whole_files_or_nothing(tmp_path):
+    import os
+
+    from esim_lite.atomic import atomic_path, write_text
+
+    target = tmp_path / "sub" / "out.txt"
+    write_text(target, "first")
+    assert target.read_text() == "first"
+    assert oct(target.stat().st_mode & 0o777) == oct(0o666 & ~_umask())  # not mkstemp's 0600
+    try:
+        with atomic_path(target) as tmp:
+            tmp.write_text("half of the seco")
+            raise RuntimeError("killed mid-write")
+    except RuntimeError:
+        pass
+    assert target.read_text() == "first" and sorted(os.listdir(target.parent)) == ["out.txt"]
+
+
+def _umask() -> int:
+    import os
+
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
