@@ -266,10 +266,10 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
         rec = open_recording(path, sensor_hw)
         model = model_for(rec.sensor_hw)
         if rec.frames is None:  # nothing to score against: shown in the figure only
-            sequences.append(unscored_sequence(rec, model, options, str(path)))
+            sequences.append(unscored_sequence(rec, model, options, _short(path)))
             continue
         ids = list(range(1, len(rec.frames)))[::options.every][:options.max_frames]
-        sequences.append(run_sequence(rec, model, ids, None, options, str(path)))
+        sequences.append(run_sequence(rec, model, ids, None, options, _short(path)))
     if not sequences:
         raise ValueError("nothing to evaluate: give --data and/or --recording")
     rows = [r for s in sequences if s.lr_targets
@@ -278,6 +278,11 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
     write_tables(rows, out, options)
     write_figure(sequences, out / "figure.png", cfg.model.scale)
     return rows
+
+
+def _short(path: str | Path) -> str:
+    """A recording's name in tables and figures: its last two path components."""
+    return "/".join(Path(path).parts[-2:])
 
 
 def average_rows(rows: list[dict]) -> list[dict]:

@@ -64,7 +64,7 @@ def test_evaluate_on_held_out_shards_and_a_recording(tiny_shards, tiny_checkpoin
         assert method in text
     table = (out / "metrics.md").read_text()
     assert "HR output vs HR ground truth" in table and "APS/LR frame" in table
-    assert str(rec) in table and "| average |" in table
+    assert f"{rec.parent.name}/{rec.name}" in table and "| average |" in table
     rows = (out / "metrics.csv").read_text().splitlines()
     assert rows[0].startswith("sequence,protocol,method") and len(rows) > 10
     assert cv2.imread(str(out / "figure.png")).shape[0] > 100
