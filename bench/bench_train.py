@@ -30,11 +30,11 @@ from pathlib import Path
 import torch
 from torch.utils.data import DataLoader
 
-from esim_lite.dataconf import load_yaml
-from model.config import TrainConfig
-from model.dataset import ShardSamples, find_shards, index_samples
-from model.e2sri_arch import E2SRI, count_parameters
-from model.losses import SimilarityLoss
+from esim_lite.core.dataconf import load_yaml
+from model.archs.e2sri_arch import E2SRI, count_parameters
+from model.data.dataset import ShardSamples, find_shards, index_samples
+from model.losses.similarity import SimilarityLoss
+from model.training.config import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -87,7 +87,7 @@ def pipeline_rate(cfg: TrainConfig, shards: Path, steps: int, *, cache: bool, wo
                   channels_last: bool, bf16: bool, compile_: bool = False) -> float:
     """Samples/s of whole training steps fed by the real data pipeline (DataLoader over
     shards, or over the input cache), the way train() runs them."""
-    from model.input_cache import CacheSpec, InputCache
+    from model.data.input_cache import CacheSpec, InputCache
 
     refs, _ = index_samples(find_shards(shards), cfg.data, cfg.model.n_stacks, cfg.model.scale)
     store = InputCache.build(find_shards(shards), refs, CacheSpec(

@@ -22,10 +22,10 @@ from pathlib import Path
 
 import torch
 
-from esim_lite.dataconf import load_yaml
-from model.config import TrainConfig
-from model.e2sri_arch import E2SRI, count_parameters
-from model.losses import SimilarityLoss
+from esim_lite.core.dataconf import load_yaml
+from model.archs.e2sri_arch import E2SRI, count_parameters
+from model.losses.similarity import SimilarityLoss
+from model.training.config import TrainConfig
 
 
 def example(cfg, b: int, h: int, w: int):

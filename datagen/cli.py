@@ -10,7 +10,8 @@ import sys
 from pathlib import Path
 
 from datagen.config import DatagenConfig
-from esim_lite.dataconf import ConfigError, apply_overrides, from_mapping, load_yaml
+from esim_lite.core.contracts import SCALES
+from esim_lite.core.dataconf import ConfigError, apply_overrides, from_mapping, load_yaml
 
 log = logging.getLogger("datagen")
 
@@ -47,7 +48,8 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                      help="override a config value, e.g. simulation.render.backend=homography")
     gen.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
-    gen.add_argument("--scale", help="HR scales: 2, 4 or 2,4 (default from the config)")
+    gen.add_argument("--scale", help="HR scales: 2, 4, 8 or several, e.g. 2,4 "
+                     "(default from the config)")
     gen.add_argument("--textures", nargs="+", metavar="SOURCE",
                      help="one or more folders or zip/pk3 files of images, or 'builtin' "
                           "(default: built-in)")
@@ -77,10 +79,14 @@ def _generate(args: argparse.Namespace) -> int:
         raise ValueError(f"--workers must be at least 1, got {args.workers}")
     overrides = list(args.set)
     if args.scale:
-        scales = [s.strip() for s in args.scale.split(",")]
-        if not scales or any(s not in ("2", "4") for s in scales):
-            raise ValueError(f"--scale must be 2, 4 or 2,4; got {args.scale!r}")
-        overrides.append(f"simulation.camera.scales=[{','.join(scales)}]")
+        try:
+            scales = [int(s) for s in args.scale.split(",")]
+        except ValueError:
+            scales = []
+        if not scales or any(s not in SCALES for s in scales):
+            raise ValueError(f"--scale must be {', '.join(map(str, SCALES))} or several joined "
+                             f"by commas (e.g. 2,4); got {args.scale!r}")
+        overrides.append(f"simulation.camera.scales=[{','.join(map(str, scales))}]")
     if args.textures:
         sources = [str(t) for t in args.textures]
         value = sources[0] if len(sources) == 1 else sources
@@ -111,7 +117,7 @@ def main(argv: list[str] | None = None) -> int:
             return 0
         if args.command == "preview":
             from datagen.preview import preview_shards
-            from model.stacking import StackConfig
+            from esim_lite.core.stacking import StackConfig
 
             out = Path(args.out) if args.out else paths[0].parent / "preview"
             written = preview_shards(paths, out, StackConfig())

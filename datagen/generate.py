@@ -23,16 +23,15 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import h5py
 import numpy as np
 from tqdm import tqdm
 
 from datagen.config import DatagenConfig
 from datagen.lock import FolderLock, stale_temporary
 from datagen.sampling import sample_sequence
-from datagen.shard import SCHEMA_VERSION, ShardWriter
+from datagen.shard import ShardReader, ShardWriter
 from datagen.textures import TextureSampler
-from esim_lite.dataconf import to_yaml
+from esim_lite.core.dataconf import to_yaml
 from esim_lite.renderer import make_renderer
 from esim_lite.sequence import sample_footprints, simulate
 
@@ -81,21 +80,8 @@ def plan_shards(out: Path, n_seq: int, per_shard: int, shard_index: int = 0,
 
 
 def shard_state(plan: ShardPlan, config_yaml: str, seed: int) -> str:
-    """``done`` (a finished shard of this dataset), ``foreign`` (a finished shard of another
-    config or seed) or ``todo`` (missing, interrupted, or holding fewer sequences)."""
-    if not plan.path.is_file():
-        return "todo"
-    try:
-        with h5py.File(plan.path, "r") as f:
-            a = f.attrs
-            if not bool(a.get("complete", False)):
-                return "todo"
-            if a.get("config") != config_yaml or int(a.get("seed", -1)) != seed \
-                    or a.get("schema_version") != SCHEMA_VERSION:
-                return "foreign"
-            return "done" if list(a.get("sequences", [])) == list(plan.sequences) else "todo"
-    except OSError:
-        return "todo"
+    """``done``, ``foreign`` or ``todo`` for one planned shard (see ShardReader.state)."""
+    return ShardReader.state(plan.path, config_yaml, seed, plan.sequences)
 
 
 def _resolve_variant(config: DatagenConfig) -> DatagenConfig:
@@ -173,9 +159,7 @@ def _write_sequence(writer: ShardWriter, sim, textures: TextureSampler, seed: in
     renderer = make_renderer(spec.scene, rig.cameras(), sim.render,
                              sample_footprints(spec.scene, spec.trajectory, rig, sim.render))
     name = renderer.name + (f":{renderer.variant}" if hasattr(renderer, "variant") else "")
-    writer.begin_sequence(index, seed, rig.cameras(), spec.thresholds, sim.events.log_eps,
-                          name, spec.texture_name, (spec.scene.width_m, spec.scene.height_m),
-                          spec.scene.texture_hw, spec.trajectory)
+    writer.begin_sequence(spec, rig.cameras(), sim.events.log_eps, name)
     n_events = n_frames = 0
     try:
         for chunk in simulate(spec.scene, spec.trajectory, spec.thresholds, sim,

@@ -34,15 +34,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import h5py
 import numpy as np
+import yaml
 
 from esim_lite.camera import Intrinsics
-from esim_lite.events import Events
-from esim_lite.frames import Frames
+from esim_lite.config import FrameConfig
+from esim_lite.core.dataconf import from_mapping
+from esim_lite.core.events import Events
+from esim_lite.core.frames import Frames
 from esim_lite.thresholds import ContrastThresholds
 from esim_lite.trajectory import BSplineTrajectory
+
+if TYPE_CHECKING:
+    from datagen.sampling import SequenceSpec
 
 SCHEMA_VERSION = 1
 FLOAT16_LOG_ERROR = 2.0**-12  # max |log(eps + I16) - log(eps + I)| for normal float16
@@ -78,10 +85,14 @@ class ShardWriter:
             self.file.attrs["sequences"] = list(sequences or [])
         self._group: h5py.Group | None = None
 
-    def begin_sequence(self, index: int, seed: int, cameras: dict[str, Intrinsics],
-                       thresholds: ContrastThresholds, log_eps: float, renderer: str,
-                       texture: str, scene_size_m: tuple[float, float],
-                       texture_hw: tuple[int, int], trajectory) -> None:
+    def begin_sequence(self, spec: SequenceSpec, cameras: dict[str, Intrinsics],
+                       log_eps: float, renderer: str) -> None:
+        """Start the group of sequence ``spec.index`` (its scene, trajectory, thresholds and
+        seed come from the spec; ``renderer`` names the backend that made its frames)."""
+        index, seed, thresholds = spec.index, spec.seed, spec.thresholds
+        texture, trajectory = spec.texture_name, spec.trajectory
+        scene_size_m = (spec.scene.width_m, spec.scene.height_m)
+        texture_hw = spec.scene.texture_hw
         g = self.file.create_group(sequence_name(index))
         self._group, lr = g, cameras["lr"]
         self._dtype = frame_dtype(thresholds.min_threshold)
@@ -192,6 +203,48 @@ class ShardWriter:
             self.file.close()
 
 
+@dataclass(frozen=True)
+class SequenceSummary:
+    """What one stored sequence is, in numbers (``datagen inspect``, previews, checks).
+
+    ``frame_hw`` and ``stored_bytes`` are keyed by camera (``lr`` first, then HR by scale);
+    ``stored_bytes`` also has ``events``: compressed bytes on disk.
+    """
+
+    name: str
+    index: int
+    seed: int
+    sensor_hw: tuple[int, int]
+    num_events: int
+    num_pos: int
+    num_neg: int
+    t0_s: float
+    duration_s: float
+    num_frames: int
+    frame_hw: dict[str, tuple[int, int]]
+    frame_dtype: str
+    threshold_pos: float
+    threshold_neg: float
+    per_pixel_thresholds: bool
+    renderer: str
+    texture: str
+    stored_bytes: dict[str, int]
+
+
+def _stored_bytes(node: h5py.Group | h5py.Dataset) -> int:
+    if isinstance(node, h5py.Dataset):
+        return node.id.get_storage_size()
+    total = 0
+
+    def visit(_, obj) -> None:
+        nonlocal total
+        if isinstance(obj, h5py.Dataset):
+            total += obj.id.get_storage_size()
+
+    node.visititems(visit)
+    return total
+
+
 @dataclass(frozen=True, eq=False)
 class SequenceRecord:
     """One sequence read back from a shard (see the module doc for the fields)."""
@@ -250,31 +303,103 @@ class ShardReader:
     def config_yaml(self) -> str:
         return str(self.file.attrs["config"])
 
+    def frame_layout(self) -> FrameConfig | None:
+        """When the shard's frames were taken (``simulation.frames`` of its stored config);
+        None for a shard whose config this version cannot read."""
+        try:
+            frames = (yaml.safe_load(self.config_yaml) or {}).get("simulation", {}).get("frames")
+            return from_mapping(FrameConfig, frames or {})
+        except (yaml.YAMLError, AttributeError, ValueError, TypeError):
+            return None
+
     def sequences(self) -> list[str]:
         return sorted(k for k in self.file if k.startswith("seq_"))
 
-    def group(self, name: str) -> h5py.Group:
+    @property
+    def schema_version(self) -> int:
+        return int(self.file.attrs["schema_version"])
+
+    @property
+    def seed(self) -> int | None:
+        """The dataset's master seed (None for a shard not written by ``datagen``)."""
+        seed = self.file.attrs.get("seed")
+        return None if seed is None else int(seed)
+
+    @property
+    def planned_sequences(self) -> list[int]:
+        """The sequence indices the shard was to hold (empty outside a dataset)."""
+        return [int(v) for v in self.file.attrs.get("sequences", [])]
+
+    @staticmethod
+    def state(path: str | Path, config_yaml: str, seed: int, sequences: list[int]) -> str:
+        """``done`` (a complete shard of this config, seed and sequences), ``foreign`` (a
+        complete shard of another config, seed or schema) or ``todo`` (missing, unreadable,
+        interrupted, or holding other sequences of this dataset)."""
+        path = Path(path)
+        if not path.is_file():
+            return "todo"
+        try:
+            with h5py.File(path, "r") as f:
+                a = f.attrs
+                if not bool(a.get("complete", False)):
+                    return "todo"
+                if a.get("config") != config_yaml or int(a.get("seed", -1)) != seed \
+                        or a.get("schema_version") != SCHEMA_VERSION:
+                    return "foreign"
+                return "done" if list(a.get("sequences", [])) == list(sequences) else "todo"
+        except OSError:
+            return "todo"
+
+    def _group(self, name: str) -> h5py.Group:
         if name not in self.file:
             raise KeyError(f"{self.path}: no sequence {name!r}")
         return self.file[name]
 
+    def sensor_hw(self, name: str) -> tuple[int, int]:
+        """(H, W) of the event sensor of sequence ``name``."""
+        h, w = (int(v) for v in self._group(name).attrs["sensor_resolution"])
+        return h, w
+
+    def frame_hw(self, name: str, camera: str) -> tuple[int, int]:
+        """(H, W) of one camera's frames."""
+        _, h, w = self._group(name)["frames"][camera].shape
+        return int(h), int(w)
+
+    def last_event_ns(self, name: str) -> int:
+        """Time of the last event (0 for a sequence without events)."""
+        ts = self._group(name)["events/ts"]
+        return int(round(ts[ts.shape[0] - 1] * 1e9)) if ts.shape[0] else 0
+
+    def summary(self, name: str) -> SequenceSummary:
+        g = self._group(name)
+        a, fr = g.attrs, g["frames"]
+        cams = self.frame_names(name)
+        stored = {"events": _stored_bytes(g["events"])}
+        stored.update({c: _stored_bytes(fr[c]) for c in cams})
+        return SequenceSummary(
+            name, int(a["index"]), int(a["seed"]), self.sensor_hw(name), int(a["num_events"]),
+            int(a["num_pos"]), int(a["num_neg"]), float(a["t0"]), float(a["duration"]),
+            int(fr["ts"].shape[0]), {c: self.frame_hw(name, c) for c in cams},
+            str(a["frame_dtype"]), float(a["contrast_threshold_pos"]),
+            float(a["contrast_threshold_neg"]), "thresholds" in g, str(a["renderer"]),
+            str(a["texture"]), stored)
+
     def cameras(self, name: str) -> dict[str, Intrinsics]:
-        g = self.group(name)["cameras"]
+        g = self._group(name)["cameras"]
         return {n: Intrinsics(**{k: (int if k in ("width", "height") else float)(v)
                                  for k, v in g[n].attrs.items()}) for n in g}
 
     def events(self, name: str, start: int = 0, stop: int | None = None) -> Events:
         """Events ``[start, stop)`` of a sequence (reads only that slice)."""
-        g = self.group(name)
+        g = self._group(name)
         ev = g["events"]
         sl = slice(start, stop)
-        h, w = (int(v) for v in g.attrs["sensor_resolution"])
         return Events(ev["xs"][sl], ev["ys"][sl], np.round(ev["ts"][sl] * 1e9).astype(np.int64),
-                      np.where(ev["ps"][sl] > 0, 1, -1).astype(np.int8), (h, w))
+                      np.where(ev["ps"][sl] > 0, 1, -1).astype(np.int8), self.sensor_hw(name))
 
     def event_index_at(self, name: str, t_ns: int) -> int:
         """Index of the first event later than ``t_ns`` (bisection: ~log2(N) reads)."""
-        ts = self.group(name)["events/ts"]
+        ts = self._group(name)["events/ts"]
         lo, hi, t = 0, ts.shape[0], t_ns * 1e-9
         while lo < hi:
             mid = (lo + hi) // 2
@@ -285,34 +410,40 @@ class ShardReader:
         return lo
 
     def num_events(self, name: str) -> int:
-        return int(self.group(name)["events/ts"].shape[0])
+        return int(self._group(name)["events/ts"].shape[0])
 
     def frame_names(self, name: str) -> list[str]:
         """Cameras with frames: ``lr`` first, then the HR ones by scale."""
-        fr = self.group(name)["frames"]
+        fr = self._group(name)["frames"]
         names = [n for n in fr if isinstance(fr[n], h5py.Dataset) and fr[n].ndim == 3]
         return sorted(names, key=lambda n: (n != "lr", fr[n].shape[1]))
 
-    def frame(self, name: str, camera: str, k: int) -> np.ndarray:
-        """float32[H, W] frame ``k`` of ``camera``."""
-        return self.group(name)["frames"][camera][k].astype(np.float32)
+    def frame(self, name: str, camera: str, k: int, as_stored: bool = False) -> np.ndarray:
+        """float32[H, W] frame ``k`` of ``camera`` (``as_stored``: in the file's dtype)."""
+        img = self._group(name)["frames"][camera][k]
+        return img if as_stored else img.astype(np.float32)
+
+    def frames(self, name: str, camera: str) -> Frames:
+        """All frames of one camera, float32 linear intensity, with their times."""
+        return Frames(self._group(name)["frames"][camera][:].astype(np.float32),
+                      self.frame_times_ns(name))
 
     def frame_times_ns(self, name: str) -> np.ndarray:
-        return np.round(self.group(name)["frames/ts"][:] * 1e9).astype(np.int64)
+        return np.round(self._group(name)["frames/ts"][:] * 1e9).astype(np.int64)
 
     def frame_event_idx(self, name: str) -> np.ndarray:
-        return self.group(name)["frames/event_idx"][:]
+        return self._group(name)["frames/event_idx"][:]
 
     def trajectory(self, name: str) -> BSplineTrajectory:
         """The camera trajectory the sequence was simulated with (exact poses at any time)."""
-        tr = self.group(name)["trajectory"]
+        tr = self._group(name)["trajectory"]
         return BSplineTrajectory(tr["positions"][:], tr["rotations"][:],
                                  float(tr.attrs["knot_spacing_s"]),
                                  float(tr.attrs["duration_s"]))
 
     def thresholds(self, name: str) -> ContrastThresholds:
-        g = self.group(name)
-        hw = tuple(int(v) for v in g.attrs["sensor_resolution"])
+        g = self._group(name)
+        hw = self.sensor_hw(name)
         pos = float(g.attrs["contrast_threshold_pos"])
         neg = float(g.attrs["contrast_threshold_neg"])
         if "thresholds" in g:
@@ -322,10 +453,8 @@ class ShardReader:
 
     def read(self, name: str) -> SequenceRecord:
         """The whole sequence in memory."""
-        g = self.group(name)
-        t_ns = self.frame_times_ns(name)
-        frames = {c: Frames(g["frames"][c][:].astype(np.float32), t_ns)
-                  for c in self.frame_names(name)}
+        g = self._group(name)
+        frames = {c: self.frames(name, c) for c in self.frame_names(name)}
         return SequenceRecord(name, self.events(name), frames, g["frames/poses"][:],
                               g["frames/event_idx"][:], g["poses"][:], self.cameras(name),
                               self.thresholds(name), dict(g.attrs))

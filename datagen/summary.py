@@ -4,21 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import h5py
-
 from datagen.shard import ShardReader
-
-
-def _stored_bytes(group: h5py.Group) -> int:
-    total = 0
-
-    def visit(_, obj) -> None:
-        nonlocal total
-        if isinstance(obj, h5py.Dataset):
-            total += obj.id.get_storage_size()
-
-    group.visititems(visit)
-    return total
 
 
 def describe_shard(path: str | Path) -> str:
@@ -27,26 +13,22 @@ def describe_shard(path: str | Path) -> str:
     with ShardReader(path) as reader:
         names = reader.sequences()
         size = Path(path).stat().st_size
+        seed = "?" if reader.seed is None else reader.seed
         lines.append(f"{path}: {len(names)} sequence(s), {size / 1e6:.1f} MB, schema "
-                     f"{reader.file.attrs['schema_version']}, seed "
-                     f"{reader.file.attrs.get('seed', '?')}")
+                     f"{reader.schema_version}, seed {seed}")
         for name in names:
-            g = reader.group(name)
-            a = g.attrs
-            fr = g["frames"]
-            names_fr = reader.frame_names(name)
-            cams = ", ".join(f"{c} {fr[c].shape[2]}x{fr[c].shape[1]}" for c in names_fr)
-            per_cam = ", ".join(f"{c} {fr[c].id.get_storage_size() / 1e6:.1f}"
-                                for c in names_fr)
+            s = reader.summary(name)
+            cams = ", ".join(f"{c} {w}x{h}" for c, (h, w) in s.frame_hw.items())
+            per_cam = ", ".join(f"{c} {s.stored_bytes[c] / 1e6:.1f}" for c in s.frame_hw)
             lines.append(
-                f"  {name}: {int(a['num_events']):,} events ({int(a['num_pos']):,} ON / "
-                f"{int(a['num_neg']):,} OFF) over {float(a['duration']):.3f} s; "
-                f"{fr['ts'].shape[0]} frames ({cams}, {a['frame_dtype']}); "
-                f"C+ {a['contrast_threshold_pos']:.3f} C- {a['contrast_threshold_neg']:.3f}"
-                f"{' + per-pixel maps' if 'thresholds' in g else ''}; texture {a['texture']}; "
-                f"renderer {a['renderer']}\n"
-                f"    stored MB: events {_stored_bytes(g['events']) / 1e6:.1f}, frames {per_cam}")
-            totals["events"] += int(a["num_events"])
-            totals["frames"] += fr["ts"].shape[0]
+                f"  {name}: {s.num_events:,} events ({s.num_pos:,} ON / "
+                f"{s.num_neg:,} OFF) over {s.duration_s:.3f} s; "
+                f"{s.num_frames} frames ({cams}, {s.frame_dtype}); "
+                f"C+ {s.threshold_pos:.3f} C- {s.threshold_neg:.3f}"
+                f"{' + per-pixel maps' if s.per_pixel_thresholds else ''}; texture {s.texture}; "
+                f"renderer {s.renderer}\n"
+                f"    stored MB: events {s.stored_bytes['events'] / 1e6:.1f}, frames {per_cam}")
+            totals["events"] += s.num_events
+            totals["frames"] += s.num_frames
     lines.append(f"  total: {totals['events']:,} events, {totals['frames']} frames")
     return "\n".join(lines)

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from esim_lite.core.contracts import check_scales, hr_camera
+
 
 @dataclass(frozen=True)
 class Intrinsics:
@@ -89,8 +91,7 @@ class CameraRig:
     scales: tuple[int, ...] = (2,)
 
     def __post_init__(self) -> None:
-        if any(s < 1 for s in self.scales):
-            raise ValueError(f"scales must be >= 1, got {self.scales}")
+        check_scales(self.scales, "scales")
 
     def hr(self, scale: int) -> Intrinsics:
         if scale not in self.scales:
@@ -100,5 +101,5 @@ class CameraRig:
     def cameras(self) -> dict[str, Intrinsics]:
         """All cameras by name: ``"lr"`` and ``"hr_x{s}"``."""
         out = {"lr": self.event}
-        out.update({f"hr_x{s}": self.event.scaled(s) for s in self.scales})
+        out.update({hr_camera(s): self.event.scaled(s) for s in self.scales})
         return out

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from esim_lite.camera import CameraRig, Intrinsics
+from esim_lite.core.contracts import check_scales
 from esim_lite.renderer import RenderConfig
 from esim_lite.sampling import SamplingConfig
 from esim_lite.simulator import EventConfig
@@ -30,8 +31,7 @@ class CameraConfig:
     def __post_init__(self) -> None:
         if self.width < 2 or self.height < 2:
             raise ValueError("sensor must be at least 2x2")
-        if not self.scales or any(s not in (1, 2, 3, 4, 8) for s in self.scales):
-            raise ValueError(f"scales must be a non-empty subset of 1,2,3,4,8; got {self.scales}")
+        check_scales(self.scales, "camera.scales")
 
     def rig(self) -> CameraRig:
         return CameraRig(Intrinsics.from_fov(self.width, self.height, self.fov_x_deg),

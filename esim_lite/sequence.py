@@ -10,8 +10,8 @@ import numpy as np
 from esim_lite.antialias import texels_per_sample
 from esim_lite.camera import CameraRig
 from esim_lite.config import FrameConfig, SimulationConfig
-from esim_lite.events import Events
-from esim_lite.frames import Frames
+from esim_lite.core.events import Events
+from esim_lite.core.frames import Frames
 from esim_lite.noise import NoiseModel
 from esim_lite.pose import Pose
 from esim_lite.renderer import RenderConfig, Renderer, make_renderer, supersample_for

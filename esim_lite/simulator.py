@@ -7,9 +7,9 @@ from typing import Literal
 
 import numpy as np
 
+from esim_lite.core.events import Events
 from esim_lite.event_kernel import NEVER, TIE_TOL, esim_step
 from esim_lite.event_reference import numpy_step, python_step
-from esim_lite.events import Events
 from esim_lite.noise import NoiseConfig, NoiseModel
 from esim_lite.thresholds import ContrastThresholds, ThresholdConfig
 

@@ -7,8 +7,8 @@ import logging
 import sys
 from pathlib import Path
 
-from esim_lite.dataconf import ConfigError, apply_overrides, from_mapping, load_yaml
-from model.config import TrainConfig
+from esim_lite.core.dataconf import ConfigError, apply_overrides, from_mapping, load_yaml
+from model.training.config import TrainConfig
 
 
 def load_config(path: str | None, overrides: list[str]) -> TrainConfig:
@@ -38,13 +38,13 @@ def main(argv: list[str] | None = None) -> int:
     try:
         config = load_config(args.config, args.set)
         if config.task == "flow":
-            from model.flow_pretrain import pretrain_flow
+            from model.training.flow_pretrain import pretrain_flow
 
             result = pretrain_flow(config, args.data, args.out, not args.no_progress)
             print(f"flow pre-training: {result['step']} steps; held-out EPE (px) "
                   f"{result['val']}; checkpoint {args.out}/flow_last.pt")
             return 0
-        from model.train import psnr_summary, train
+        from model.training.train import psnr_summary, train
 
         result = train(config, args.data, args.out, resume=args.resume,
                        show_progress=not args.no_progress)
@@ -111,9 +111,9 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
-        from model.pretrained import resolve
-        from model.reconstruct import Reconstructor, plan_outputs, reconstruct
-        from model.recording import open_recording
+        from model.data.recording import open_recording
+        from model.inference.pretrained import resolve
+        from model.inference.reconstruct import Reconstructor, plan_outputs, reconstruct
 
         _check_out_folder(args.out)
         ckpt = resolve(args.checkpoint, args.scale)
@@ -153,7 +153,7 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", required=True, help="folder for metrics.md/.csv and figure.png")
     p.add_argument("--normalize", choices=["affine", "minmax", "evreal", "none"],
                    default="affine", help="intensity normalisation before the metrics "
-                   "(model/evaluate.py; evreal: EVREAL's standard protocol)")
+                   "(model/inference/evaluate.py; evreal: EVREAL's standard protocol)")
     p.add_argument("--every", type=int, default=1, help="every k-th frame")
     p.add_argument("--max-frames", type=int, help="per sequence")
     p.add_argument("--no-baselines", action="store_true")
@@ -162,8 +162,8 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
-        from model.evaluate import BASELINES, EvalOptions, evaluate
-        from model.pretrained import resolve
+        from model.inference.evaluate import BASELINES, EvalOptions, evaluate
+        from model.inference.pretrained import resolve
 
         _check_out_folder(args.out)
         options = EvalOptions(normalize=args.normalize, every=args.every,
@@ -197,8 +197,8 @@ def export_main(argv: list[str] | None = None) -> int:
     try:
         import json
 
-        from model import checkpoint
-        from model.pretrained import export
+        from model.inference.pretrained import export
+        from model.training import checkpoint
 
         state = checkpoint.load(args.checkpoint)
         info = {"data": args.data, "recipe": args.recipe, "step": state.get("step"),

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 
 from esim_lite.config import SimulationConfig
-from esim_lite.dataconf import ConfigError, apply_overrides, load_yaml, load_yaml_text, to_yaml
+from esim_lite.core.dataconf import ConfigError, apply_overrides, load_yaml, load_yaml_text, to_yaml
 
 
 def test_round_trip_through_yaml():

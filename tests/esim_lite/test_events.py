@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from esim_lite.events import Events
+from esim_lite.core.events import Events
 
 
 def make(n=5, t=None, x=None):
@@ -41,7 +41,7 @@ def test_concatenate_slice_and_counts():
 def test_atomic_writes_replace_whole_files_or_nothing(tmp_path):
     import os
 
-    from esim_lite.atomic import atomic_path, write_text
+    from esim_lite.core.atomic import atomic_path, write_text
 
     target = tmp_path / "sub" / "out.txt"
     write_text(target, "first")

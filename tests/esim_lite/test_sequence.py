@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from esim_lite.config import CameraConfig, FrameConfig, SimulationConfig
-from esim_lite.events import Events
+from esim_lite.core.events import Events
 from esim_lite.noise import NoiseConfig, NoiseModel
 from esim_lite.renderer import RenderConfig
 from esim_lite.sequence import FrameSchedule, frame_times_ns, simulate, simulate_sequence

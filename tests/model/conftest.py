@@ -28,7 +28,7 @@ def tiny_config(*overrides: str):
 @pytest.fixture(scope="session")
 def tiny_checkpoint(tiny_shards, tmp_path_factory) -> Path:
     """A tiny model trained for a few steps (for pipelines, not quality)."""
-    from model.train import train
+    from model.training.train import train
 
     out = tmp_path_factory.mktemp("tiny_run")
     train(tiny_config("run.max_steps=3"), tiny_shards, out, show_progress=False)

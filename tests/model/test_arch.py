@@ -8,11 +8,11 @@ from pathlib import Path
 import pytest
 import torch
 
-from esim_lite.dataconf import load_yaml
-from model.config import TrainConfig
-from model.dataset import DataConfig, ShardSamples, find_shards, index_samples
-from model.e2sri_arch import E2SRI, NetConfig, count_parameters
-from model.stacking import StackConfig
+from esim_lite.core.dataconf import load_yaml
+from esim_lite.core.stacking import StackConfig
+from model.archs.e2sri_arch import E2SRI, NetConfig, count_parameters
+from model.data.dataset import DataConfig, ShardSamples, find_shards, index_samples
+from model.training.config import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = sorted((ROOT / "configs").glob("train_*.yaml"))
@@ -147,3 +147,13 @@ def test_folding_space_to_depth_handles_any_size(scale):
     torch.testing.assert_close(out, big[..., :17 * scale, :13 * scale])
     with pytest.raises(ValueError, match="fold"):
         NetConfig(fold=2)  # the paper's HR-state layout has nothing to fold
+
+
+def test_the_network_has_a_projection_for_every_scale_datagen_renders():
+    from esim_lite.core.contracts import SCALES
+    from model.archs.blocks import PROJECTION
+
+    assert set(PROJECTION) == set(SCALES)
+    for s in SCALES:  # stride s, and a deconv of the LR grid lands exactly on the HR grid
+        k, stride, pad = PROJECTION[s]
+        assert stride == s and (16 - 1) * stride - 2 * pad + k == 16 * s

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from esim_lite.config import CameraConfig, SimulationConfig
-from esim_lite.events import Events
+from esim_lite.core.events import Events
 from esim_lite.renderer import RenderConfig
 from esim_lite.sequence import simulate_sequence
 from esim_lite.thresholds import ContrastThresholds
-from model.baselines import EventFilter, FilterConfig
+from model.inference.baselines import EventFilter, FilterConfig
 from tests.conftest import scene_and_trajectory
 
 

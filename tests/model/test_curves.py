@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import cv2
 
-from model.curves import ValHistory
+from model.training.curves import ValHistory
 
 
 def test_history_round_trips_and_a_resumed_run_replaces_what_it_repeats(tmp_path):

@@ -6,7 +6,7 @@ import cv2
 import numpy as np
 
 from model.cli import evaluate_main
-from model.evaluate import normalized, temporally_consistent, warp_error
+from model.inference.evaluate import normalized, temporally_consistent, warp_error
 from tests.model.test_recording import events
 
 
@@ -85,7 +85,7 @@ def test_evreal_protocol_compares_absolute_methods_as_they_are():
 
 def test_split_all_scores_every_sequence_and_frameless_recordings_go_to_the_figure(
         tiny_shards, tiny_checkpoint, tmp_path):
-    from model.evaluate import EvalOptions, evaluate
+    from model.inference.evaluate import EvalOptions, evaluate
     from tests.model.test_recording import write_text
 
     opts = EvalOptions(baselines=("hf",), temporal=False)

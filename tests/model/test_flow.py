@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from model.dataset import DataConfig, ShardSamples, find_shards, index_samples
-from model.flow import classical_flow, stack_flows
-from model.flow_pretrain import pretrain_flow
-from model.stacking import StackConfig
-from model.train import train
+from esim_lite.core.stacking import StackConfig
+from model.archs.flow import classical_flow, stack_flows
+from model.data.dataset import DataConfig, ShardSamples, find_shards, index_samples
+from model.training.flow_pretrain import pretrain_flow
+from model.training.train import train
 from tests.model.conftest import tiny_config
 
 

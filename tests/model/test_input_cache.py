@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from model.dataset import ShardSamples, find_shards, index_samples
-from model.input_cache import CacheSpec, InputCache, build_shard, cache_folder
-from model.stacking import StackConfig
+from esim_lite.core.stacking import StackConfig
+from model.data.dataset import ShardSamples, find_shards, index_samples
+from model.data.input_cache import CacheSpec, InputCache, build_shard, cache_folder
 from tests.model.conftest import tiny_config
 
 

@@ -10,7 +10,7 @@ from skimage import data
 from skimage.metrics import structural_similarity
 
 from model import lpips as lp
-from model.metrics import mse, psnr, psnr_from_mse, ssim
+from model.metrics.image import mse, psnr, psnr_from_mse, ssim
 
 
 @pytest.fixture(scope="module")

@@ -7,8 +7,15 @@ import json
 import pytest
 import torch
 
-from model import checkpoint
-from model.pretrained import WEIGHTS, export, file_name, manifest, sha256, shipped_checkpoint
+from model.inference.pretrained import (
+    WEIGHTS,
+    export,
+    file_name,
+    manifest,
+    sha256,
+    shipped_checkpoint,
+)
+from model.training import checkpoint
 from tests.model.test_arch import inputs
 
 

@@ -6,10 +6,10 @@ import cv2
 import numpy as np
 import pytest
 
-from esim_lite.events import Events
+from esim_lite.core.events import Events
 from model.cli import reconstruct_main
-from model.reconstruct import EventWindow, Reconstructor, plan_outputs, reconstruct
-from model.recording import open_recording
+from model.data.recording import open_recording
+from model.inference.reconstruct import EventWindow, Reconstructor, plan_outputs, reconstruct
 from tests.conftest import REAL_EVENTS
 from tests.model.test_recording import events, write_hdf5
 
@@ -135,7 +135,7 @@ def test_reading_far_ahead_keeps_memory_bounded_unless_pinned():
 
 
 def test_complementary_and_duo_pass_reconstruction(tiny_shards, tiny_checkpoint, tmp_path):
-    from model.train import train
+    from model.training.train import train
     from tests.model.conftest import tiny_config
 
     train(tiny_config("model.central=aps", "run.max_steps=1"), tiny_shards, tmp_path / "comp",
@@ -159,8 +159,8 @@ def test_sbt_models_get_time_stacks_streamed_with_bounded_memory():
     rate jumps 50x, and the window holds only about the stacks' time span."""
     import torch
 
-    from model.e2sri_arch import E2SRI, NetConfig
-    from model.stacking import StackConfig, stack_sequence_by_time
+    from esim_lite.core.stacking import StackConfig, stack_sequence_by_time
+    from model.archs.e2sri_arch import E2SRI, NetConfig
 
     hw, n = (8, 8), 200_000
     rng = np.random.default_rng(3)

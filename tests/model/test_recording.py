@@ -6,8 +6,8 @@ import h5py
 import numpy as np
 import pytest
 
-from esim_lite.events import Events
-from model.recording import open_recording
+from esim_lite.core.events import Events
+from model.data.recording import open_recording
 from tests.conftest import REAL_EVENTS
 
 ECD = REAL_EVENTS / "ecd_snippets"
@@ -109,6 +109,16 @@ def test_our_shards_are_recordings(tiny_shards):
     assert len(rec.read_all()) > 100
     with pytest.raises(ValueError, match="no sequence 'seq_9'"):
         open_recording(path, sequence="seq_9")
+
+
+def test_a_shard_takes_the_sensor_size_override_like_every_format(tiny_shards):
+    path = sorted(tiny_shards.glob("shard_*.h5"))[0]
+    rec = open_recording(path, sensor_hw=(60, 80))  # a larger canvas than the stored 48x64
+    events = rec.read_all()
+    assert rec.sensor_hw == (60, 80) and events.sensor_hw == (60, 80)
+    assert len(events) == len(open_recording(path).read_all())
+    with pytest.raises(ValueError, match="outside the 32x24 sensor"):
+        open_recording(path, sensor_hw=(24, 32)).read_all()  # too small: refused, named
 
 
 @pytest.mark.parametrize("content, problem", [

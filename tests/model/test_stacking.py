@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from esim_lite.events import Events
-from model.stacking import StackConfig, sbn_stack, sbt_stack, stack_sequence
+from esim_lite.core.events import Events
+from esim_lite.core.stacking import StackConfig, sbn_stack, sbt_stack, stack_sequence
 
 
 def random_events(n, hw=(20, 30), seed=0, hot=None):
@@ -88,7 +88,7 @@ def test_events_per_channel_scales_with_area():
 
 
 def test_sbt_sequence_is_adjacent_in_time():
-    from model.stacking import stack_sequence_by_time
+    from esim_lite.core.stacking import stack_sequence_by_time
 
     ev = random_events(5000)
     cfg = StackConfig(method="sbt", channels=3, channel_ms=20.0)

@@ -15,12 +15,13 @@ import numpy as np
 import pytest
 import torch
 
-from model import checkpoint
+from esim_lite.core.stacking import StackConfig
 from model.cli import main
-from model.config import OptimConfig
-from model.dataset import DataConfig, ShardSamples, find_shards, index_samples, split_sequences
-from model.stacking import StackConfig
-from model.train import epoch_batches, lr_lambda, train
+from model.data.dataset import DataConfig, ShardSamples, find_shards, index_samples, split_sequences
+from model.training import checkpoint
+from model.training.config import OptimConfig
+from model.training.setup import epoch_batches
+from model.training.train import lr_lambda, train
 from tests.model.conftest import ROOT, tiny_config
 
 
@@ -146,8 +147,8 @@ def test_ddp_on_two_cpu_processes(tiny_shards, tmp_path):
     assert checkpoint.load(out / "last.pt")["step"] == 3
     digests = {(out / f"digest_rank{r}.txt").read_text() for r in range(2)}
     assert len(digests) == 1  # both ranks hold the same weights after every step
-    from model.e2sri_arch import E2SRI
-    from model.train import weights_digest
+    from model.archs.e2sri_arch import E2SRI
+    from model.training.train import weights_digest
 
     net = checkpoint.load_model(out / "last.pt")
     assert isinstance(net, E2SRI) and weights_digest(net) in digests
@@ -192,7 +193,7 @@ def test_cli(tiny_shards, tmp_path, capsys):
 
 
 def test_resume_refuses_a_different_network_or_batch_plan(tiny_shards, tmp_path):
-    from model.train import train
+    from model.training.train import train
 
     out = tmp_path / "r"
     train(tiny_config("run.max_steps=2"), tiny_shards, out, show_progress=False)

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from model.blocks import conv
+from model.archs.blocks import conv
 
 _DIS: dict[int, cv2.DISOpticalFlow] = {}  # one instance per preset, made on first use
 

@@ -11,9 +11,11 @@ so any worker count, order or resumption gives the same samples.
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 import zlib
+from esim_lite.core.contracts import hr_camera, stack_fit_warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -25,9 +27,12 @@ from torch.utils.data import Dataset
 from datagen.shard import ShardReader
 from esim_lite.motion import planar_flow
 from esim_lite.pose import Pose
-from model.flow import stack_flows
-from model.input_cache import InputCache
-from model.stacking import StackConfig, stack_span_ns, stacks_around
+from model.archs.flow import stack_flows
+from model.data.input_cache import InputCache
+from esim_lite.core.stacking import StackConfig, stack_span_ns, stack_to_input, stacks_around
+
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -43,7 +48,7 @@ class DataConfig:
             the learned FNet), or ``none``.
         flips: random horizontal/vertical flips in training.
         cache: precompute SBN stacks, flow and frames once into ``<data>/cache/`` and train
-            from memory maps (model/input_cache.py); flow is then computed on whole frames.
+            from memory maps (model/data/input_cache.py); flow is then computed on whole frames.
     """
 
     stacks: StackConfig = field(default_factory=StackConfig)
@@ -97,12 +102,20 @@ def index_samples(shards: list[Path], data: DataConfig, n_stacks: int, scale: in
     after = half * (per_stack - data.stacks.overlap)
     span = stack_span_ns(data.stacks)
     samples: dict[str, list[SampleRef]] = {}
+    warned: set = set()
     for path in shards:
         with ShardReader(path) as reader:
+            layout = reader.frame_layout()
+            if data.stacks.method == "sbn" and layout is not None and layout.mode == "events" \
+                    and (layout.every_events, layout.tail_events) not in warned:
+                warned.add((layout.every_events, layout.tail_events))
+                for problem in stack_fit_warnings(layout.every_events, layout.tail_events,
+                                                  per_stack, n_stacks, data.stacks.overlap):
+                    log.warning("%s: %s", path, problem)
             for seq in reader.sequences():
                 cams = reader.frame_names(seq)
-                if f"hr_x{scale}" not in cams:
-                    raise ValueError(f"{path}/{seq}: no hr_x{scale} frames (it has "
+                if hr_camera(scale) not in cams:
+                    raise ValueError(f"{path}/{seq}: no {hr_camera(scale)} frames (it has "
                                      f"{', '.join(cams)}); generate with --scale {scale}")
                 total = reader.num_events(seq)
                 idx = reader.frame_event_idx(seq)
@@ -111,8 +124,7 @@ def index_samples(shards: list[Path], data: DataConfig, n_stacks: int, scale: in
                     fits = [k > 0 and a - before >= 0 and a + after <= total
                             for k, a in enumerate(idx)]
                 else:  # by time: the stacks' time span must lie inside the recording
-                    t_last = int(round(reader.group(seq)["events/ts"][total - 1] * 1e9)) \
-                        if total else 0
+                    t_last = reader.last_event_ns(seq)
                     fits = [k > 0 and t[k] - (half + 1) * span >= 0 and
                             t[k] + half * span <= t_last for k in range(len(idx))]
                 samples[f"{path.name}/{seq}"] = [
@@ -122,13 +134,6 @@ def index_samples(shards: list[Path], data: DataConfig, n_stacks: int, scale: in
     train = [s for k in sorted(samples) if k not in val_keys for s in samples[k]]
     val = [s for k in sorted(samples) if k in val_keys for s in samples[k]]
     return train, val
-
-
-def stack_to_input(stacks: np.ndarray) -> np.ndarray:
-    """float32 in [-1, 1] from uint8 SBN values: 0 -> -1 (OFF), 128 -> 0, 255 -> +1 (ON)."""
-    out = (stacks.astype(np.float32) - 127.5) / 127.5
-    out[stacks == 128] = 0.0
-    return out
 
 
 _FLIP_X = np.array([-1.0, 1.0], np.float32)[:, None, None]  # negate dx on a left-right flip
@@ -200,7 +205,7 @@ class ShardSamples(Dataset):
         events, built = self._stacks(reader, ref)
         stacks = np.stack([st.image for st in built])
         lr = reader.frame(ref.sequence, "lr", ref.frame)
-        hr = reader.frame(ref.sequence, f"hr_x{self.scale}", ref.frame)
+        hr = reader.frame(ref.sequence, hr_camera(self.scale), ref.frame)
         given = self._exact_flows(reader, ref, events, built) \
             if self.data.flow == "exact" else None
         return stacks, given, lr, hr

@@ -21,7 +21,7 @@ import cv2
 import numba
 import numpy as np
 
-from esim_lite.events import Events
+from esim_lite.core.events import Events
 
 Method = Literal["hf", "direct", "complementary"]
 

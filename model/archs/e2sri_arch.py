@@ -17,7 +17,7 @@ code builds on RBPN, Haris et al. 2019, whose projection layout this follows):
 ``central`` is the central SBN stack (main), the LR APS frame (Complementary) or a
 downsampled first-pass output (Duo-Pass); the caller chooses, the network only needs its
 channel count. The flow to each side stack comes from outside (classical, in the data
-pipeline) or from :class:`model.flow.FlowNet` when ``flow == "learned"``.
+pipeline) or from :class:`model.archs.flow.FlowNet` when ``flow == "learned"``.
 """
 
 from __future__ import annotations
@@ -29,8 +29,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from model.blocks import PROJECTION, conv, deconv, down, res_stack
-from model.flow import FlowNet
+from esim_lite.core.contracts import check_scales
+from model.archs.blocks import conv, deconv, down, res_stack
+from model.archs.flow import FlowNet
 
 
 @dataclass(frozen=True)
@@ -77,8 +78,7 @@ class NetConfig:
     def __post_init__(self) -> None:
         if self.fold < 1 or (self.fold > 1 and self.state != "lr"):
             raise ValueError("fold must be >= 1, and > 1 only with state: lr")
-        if self.scale not in PROJECTION:
-            raise ValueError(f"scale must be one of {sorted(PROJECTION)}, got {self.scale}")
+        check_scales((self.scale,), "model.scale")
         if self.n_stacks < 3 or self.n_stacks % 2 == 0:
             raise ValueError(f"n_stacks must be odd and >= 3, got {self.n_stacks}")
         if min(self.base_channels, self.hr_channels, self.c_blocks, self.blocks) < 1:
@@ -181,6 +181,15 @@ def _fold(x: torch.Tensor, f: int) -> torch.Tensor:
 
 #: Pixel flows are divided by this before entering the network (keeps inputs near [-1, 1]).
 FLOW_SCALE = 4.0
+
+CENTRAL_OF_MODE = {"main": "stack", "complementary": "aps", "duo-pass": "first_pass"}
+"""The paper's three models by name (``reconstruct --mode``) and the central input each
+network is built for (:attr:`NetConfig.central`)."""
+
+
+def mode_of(config: NetConfig) -> str:
+    """The ``reconstruct --mode`` a network of ``config`` runs in."""
+    return next(m for m, c in CENTRAL_OF_MODE.items() if c == config.central)
 
 
 def count_parameters(model: nn.Module) -> int:

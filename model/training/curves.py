@@ -11,7 +11,7 @@ import csv
 import io
 from pathlib import Path
 
-from esim_lite.atomic import write_bytes
+from esim_lite.core.atomic import write_bytes
 
 COLUMNS = ("step", "hours", "psnr", "ssim", "mse", "lpips")
 

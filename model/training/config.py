@@ -5,8 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
-from model.dataset import DataConfig
-from model.e2sri_arch import NetConfig
+from model.archs.e2sri_arch import NetConfig
+from model.data.dataset import DataConfig
 
 
 @dataclass(frozen=True)
@@ -82,7 +82,7 @@ class RunConfig:
 @dataclass(frozen=True)
 class TrainConfig:
     """``task``: ``e2sri`` trains the network; ``flow`` pre-trains the learnable FNet on the
-    simulator's exact flow (model/flow_pretrain.py)."""
+    simulator's exact flow (model/training/flow_pretrain.py)."""
 
     task: Literal["e2sri", "flow"] = "e2sri"
     model: NetConfig = field(default_factory=NetConfig)

@@ -31,6 +31,7 @@ import json
 import logging
 import os
 import shutil
+from esim_lite.core.contracts import hr_camera
 from collections.abc import Sequence
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -39,8 +40,8 @@ from pathlib import Path
 import numpy as np
 
 from datagen.shard import ShardReader
-from model.flow import classical_flow, stack_to_gray
-from model.stacking import StackConfig, stacks_around
+from model.archs.flow import classical_flow, stack_to_gray
+from esim_lite.core.stacking import StackConfig, stacks_around
 
 log = logging.getLogger(__name__)
 
@@ -64,8 +65,7 @@ class CacheSpec:
 def shard_identity(path: Path) -> str:
     """Content identity of a complete shard: its config, seed, sequences and size."""
     with ShardReader(path) as reader:
-        attrs = reader.file.attrs
-        parts = [reader.config_yaml, str(attrs.get("seed")), str(attrs.get("sequences")),
+        parts = [reader.config_yaml, str(reader.seed), str(reader.planned_sequences),
                  ",".join(reader.sequences())]
     return hashlib.sha256("\n".join(parts + [str(path.stat().st_size)]).encode()).hexdigest()
 
@@ -80,19 +80,17 @@ def cache_folder(spec: CacheSpec, shard: Path) -> Path:
 
 
 def _shard_arrays(path: Path, refs: list, spec: CacheSpec) -> dict[str, np.ndarray | list]:
-    """All cached arrays of one shard's samples ``refs`` (model.dataset.SampleRef)."""
+    """All cached arrays of one shard's samples ``refs`` (model.data.dataset.SampleRef)."""
     mid = spec.n_stacks // 2
     stacks, stack_rows = [], {}
     flows, lr, hr, rows, keys = [], [], [], [], []
-    hr_name = f"hr_x{spec.scale}"
+    hr_name = hr_camera(spec.scale)
     with ShardReader(path) as reader:
         by_seq: dict[str, list] = {}
         for r in refs:
             by_seq.setdefault(r.sequence, []).append(r)
         for seq, seq_refs in sorted(by_seq.items()):
             events = reader.events(seq)
-            g = reader.group(seq)["frames"]
-            lr_all, hr_all = g["lr"], g[hr_name]
             for r in seq_refs:
                 built = stacks_around(events, spec.stacks, spec.n_stacks, r.anchor, r.t_ns)
                 idx = []
@@ -112,8 +110,8 @@ def _shard_arrays(path: Path, refs: list, spec: CacheSpec) -> dict[str, np.ndarr
                     flow_idx.append(len(flows))
                     flows.append(f.transpose(2, 0, 1).astype(np.float16))
                 rows.append(idx + flow_idx)
-                lr.append(lr_all[r.frame][None])
-                hr.append(hr_all[r.frame][None])
+                lr.append(reader.frame(seq, "lr", r.frame, as_stored=True)[None])
+                hr.append(reader.frame(seq, hr_name, r.frame, as_stored=True)[None])
                 keys.append(f"{seq}/{r.frame}")
     h, w = events.sensor_hw
     return {"stacks": np.stack(stacks), "rows": np.asarray(rows, np.int32),

@@ -18,7 +18,7 @@ from typing import Literal
 
 import numpy as np
 
-from esim_lite.events import Events
+from esim_lite.core.events import Events
 
 BACKGROUND, ON, OFF = 128, 255, 0
 
@@ -186,3 +186,10 @@ def stacks_around(events: Events, config: StackConfig, n_stacks: int, anchor: in
 def stack_span_ns(config: StackConfig) -> int:
     """Duration of one SBT stack in nanoseconds."""
     return int(round(config.channels * config.channel_ms * 1e6))
+
+
+def stack_to_input(stacks: np.ndarray) -> np.ndarray:
+    """float32 in [-1, 1] from uint8 SBN values: 0 -> -1 (OFF), 128 -> 0, 255 -> +1 (ON)."""
+    out = (stacks.astype(np.float32) - 127.5) / 127.5
+    out[stacks == 128] = 0.0
+    return out

@@ -5,7 +5,7 @@ from __future__ import annotations
 from torch import nn
 
 #: (kernel, stride, padding) of the back-projection up/down sampling for each scale.
-PROJECTION = {2: (6, 2, 2), 4: (8, 4, 2), 8: (12, 8, 2)}
+PROJECTION = {2: (6, 2, 2), 4: (8, 4, 2), 8: (12, 8, 2)}  # kernel, stride, padding per scale
 
 
 def conv(c_in: int, c_out: int, k: int = 3, s: int = 1, p: int = 1, act: bool = True

@@ -1,4 +1,4 @@
-"""Image quality metrics of the paper: PSNR, SSIM, MSE (and LPIPS from :mod:`model.lpips`).
+"""Image quality metrics of the paper: PSNR, SSIM, MSE (and LPIPS from :mod:`model.losses.lpips`).
 
 All take ``(B, 1, H, W)`` tensors with values in [0, 1] and return ``(B,)`` tensors.
 SSIM is Wang et al.'s with an 11x11 Gaussian window (sigma 1.5), K1 = 0.01, K2 = 0.03,

@@ -18,12 +18,13 @@ import torch
 from torch.utils.data import DataLoader
 from tqdm import tqdm
 
-from esim_lite.dataconf import to_yaml
-from model import checkpoint
-from model.config import TrainConfig
-from model.dataset import ShardSamples, find_shards, index_samples
-from model.flow import FlowNet, stack_flows
-from model.train import epoch_batches
+from esim_lite.core.atomic import write_text
+from esim_lite.core.dataconf import to_yaml
+from model.archs.flow import FlowNet, stack_flows
+from model.data.dataset import ShardSamples
+from model.training import checkpoint
+from model.training.config import TrainConfig
+from model.training.setup import build_data, epoch_batches
 
 
 def epe(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
@@ -67,16 +68,11 @@ def pretrain_flow(config: TrainConfig, data: str | Path, out: str | Path,
     run, optim = config.run, config.optim
     data_cfg = dataclasses.replace(config.data, flow="exact")
     torch.manual_seed(run.seed)
-    train_refs, val_refs = index_samples(find_shards(data), data_cfg, config.model.n_stacks,
-                                         config.model.scale)
-    train_set = ShardSamples(train_refs, data_cfg, config.model.n_stacks, config.model.scale,
-                             True, run.seed)
-    val_set = ShardSamples(val_refs, data_cfg, config.model.n_stacks, config.model.scale, False)
+    samples = build_data(config, data, data_config=data_cfg, use_cache=False, spread_val=False)
+    train_set, val_set, steps_per_epoch = (samples.train_set, samples.val_set,
+                                           samples.steps_per_epoch)
     net = FlowNet(config.model.stack_channels)
     opt = torch.optim.Adam(net.parameters(), lr=optim.lr)
-    steps_per_epoch = len(epoch_batches(len(train_set), optim.batch_size, run.seed, 0))
-    if steps_per_epoch == 0:
-        raise ValueError(f"{data}: fewer training samples than the batch size")
     total = optim.epochs * steps_per_epoch if run.max_steps is None else run.max_steps
     before = validate(net, val_set) if len(val_set) else {}
     step, epoch, start, losses = 0, 0, time.perf_counter(), []
@@ -105,5 +101,5 @@ def pretrain_flow(config: TrainConfig, data: str | Path, out: str | Path,
     result = {"step": step, "train_epe_first": losses[0], "train_epe_last": losses[-1],
               "val_before": before, "val": validate(net, val_set) if len(val_set) else {},
               "seconds": time.perf_counter() - start}
-    (out / "result.json").write_text(json.dumps(result, indent=2))
+    write_text(out / "result.json", json.dumps(result, indent=2))
     return result

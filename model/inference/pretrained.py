@@ -18,10 +18,10 @@ from typing import Any
 
 import torch
 
-from esim_lite.atomic import atomic_path, write_text
-from model import checkpoint
+from esim_lite.core.atomic import atomic_path, write_text
+from model.training import checkpoint
 
-WEIGHTS = Path(__file__).resolve().parent / "weights"
+WEIGHTS = Path(__file__).resolve().parents[1] / "weights"
 MANIFEST = "manifest.json"
 
 

@@ -21,7 +21,7 @@ compares raw values.
 
 Temporal stability (the paper's Table 6): ``E_warp`` between consecutive outputs with the
 flow of the ground-truth frames; ``ours+tc`` is our outputs after the blind post-process
-(both in :mod:`model.temporal`).
+(both in :mod:`model.inference.temporal`).
 """
 
 from __future__ import annotations
@@ -37,17 +37,19 @@ import cv2
 import numpy as np
 import torch
 
-from datagen.preview import contact_sheet, event_image, gray_to_rgb, write_png
 from datagen.shard import ShardReader
-from esim_lite.atomic import write_text
-from model import checkpoint
-from model.baselines import EventFilter, FilterConfig, upsample
-from model.dataset import find_shards, index_samples
-from model.lpips import LPIPS
-from model.metrics import mse, psnr, ssim
-from model.reconstruct import OutputPlan, Reconstructor, output_times
-from model.recording import Recording, open_recording
-from model.temporal import reference_motion, temporally_consistent, warp_error
+from esim_lite.core.atomic import write_text
+from esim_lite.core.contracts import READ_CHUNK_EVENTS, hr_camera
+from esim_lite.core.figures import contact_sheet, event_image, gray_to_rgb, write_png
+from model.archs.e2sri_arch import mode_of
+from model.data.dataset import find_shards, index_samples
+from model.data.recording import Recording, open_recording
+from model.inference.baselines import EventFilter, FilterConfig, upsample
+from model.inference.reconstruct import OutputPlan, Reconstructor, output_times
+from model.inference.temporal import reference_motion, temporally_consistent, warp_error
+from model.losses.lpips import LPIPS
+from model.metrics.image import mse, psnr, ssim
+from model.training import checkpoint
 
 log = logging.getLogger(__name__)
 BASELINES = ("hf", "direct", "complementary")
@@ -120,7 +122,7 @@ def run_sequence(recording: Recording, model: Reconstructor, frame_ids: list[int
     filters = {m: EventFilter(m, recording.sensor_hw, options.filters) for m in options.baselines}
     out = SequenceOutputs(name, {m: [] for m in ("ours", *options.baselines)}, [], None
                           if hr_frames is None else [], [])
-    chunk_size = 1_000_000
+    chunk_size = READ_CHUNK_EVENTS
     window = model.event_window(recording.events(chunk_size), recording.sensor_hw, chunk_size)
     fed, next_frame = 0, 0
     window.pin = fed  # the baselines have consumed the events before this index
@@ -158,7 +160,7 @@ def unscored_sequence(recording: Recording, model: Reconstructor, options: EvalO
                       name: str, limit: int = 64) -> SequenceOutputs:
     """Without APS frames there is nothing to score against: outputs of the network and of
     HF at the end of every stack (the first ``limit``), for the figure only."""
-    chunk_size = 1_000_000
+    chunk_size = READ_CHUNK_EVENTS
     window = model.event_window(recording.events(chunk_size), recording.sensor_hw, chunk_size)
     hf = EventFilter("hf", recording.sensor_hw, options.filters)
     out = SequenceOutputs(name, {"ours": [], "hf": []}, [], None, [])
@@ -233,7 +235,7 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
     out.mkdir(parents=True, exist_ok=True)
     state = checkpoint.load(ckpt)
     cfg = checkpoint.config_of(state, str(ckpt))
-    mode = {"stack": "main", "aps": "complementary", "first_pass": "duo-pass"}[cfg.model.central]
+    mode = mode_of(cfg.model)
     models: dict[tuple[int, int], Reconstructor] = {}
 
     def model_for(hw: tuple[int, int]) -> Reconstructor:  # the checkpoint is read once
@@ -259,7 +261,7 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
             rec = open_recording(path, sequence=seq)
             model = model_for(rec.sensor_hw)
             with ShardReader(path) as reader:
-                hr = [reader.frame(seq, f"hr_x{cfg.model.scale}", k) for k in frames]
+                hr = [reader.frame(seq, hr_camera(cfg.model.scale), k) for k in frames]
             sequences.append(run_sequence(rec, model, frames, hr, options,
                                           f"{Path(path).name}/{seq}"))
     for path in recordings or []:

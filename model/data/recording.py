@@ -1,0 +1,55 @@
+"""Event recordings in: every supported file format as one streaming, validated interface.
+
+``open_recording(path)`` recognises:
+- e2sr shards (``shard_*.h5``; a ``sequence`` picks one, default the first);
+- event_utils / E2VID-style HDF5 (``events/xs, ys, ts, ps``; ``images/*`` with a
+  ``timestamp`` attribute; ``sensor_resolution`` attribute);
+- the Event Camera Dataset's text format (``events.txt``: ``t x y p`` in seconds and 0/1,
+  with ``images.txt`` + ``images/`` when present), a file or its folder;
+- AEDAT4 from iniVation cameras (events and APS frames) and Prophesee EVT2/EVT3 ``.raw``,
+  both decoded by the maintained ``faery`` package.
+
+Events come in chunks (:meth:`Recording.events`), so a file of any length is read with
+bounded memory; every chunk is checked (time order across chunks, coordinates inside the
+sensor, polarity) and a bad file fails with its path and the problem. APS frames, small by
+nature, are loaded whole as linear intensity in [0, 1]. Each format is one module of
+:mod:`model.data.formats`; this one only picks.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import h5py
+
+from model.data.formats.base import Recording
+from model.data.formats.ecd_text import open_text
+from model.data.formats.event_utils import open_event_hdf5
+from model.data.formats.faery_formats import open_aedat4, open_raw
+from model.data.formats.shard import open_shard
+
+__all__ = ["Recording", "open_recording"]
+
+
+def open_recording(path: str | Path, sensor_hw: tuple[int, int] | None = None,
+                   sequence: str | None = None) -> Recording:
+    """Open ``path`` (format from its content/name); ``sensor_hw`` overrides the file's."""
+    path = Path(path)
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file or folder")
+    if path.is_dir() or path.suffix == ".txt":
+        return open_text(path, sensor_hw)
+    suffix = path.suffix.lower()
+    if suffix in (".h5", ".hdf5", ".hdf"):
+        try:
+            with h5py.File(path, "r") as f:
+                is_shard = "schema_version" in f.attrs
+        except OSError as exc:
+            raise ValueError(f"{path}: not a readable HDF5 file ({exc})") from exc
+        return open_shard(path, sequence, sensor_hw) if is_shard else open_event_hdf5(path, sensor_hw)
+    if suffix == ".aedat4":
+        return open_aedat4(path, sensor_hw)
+    if suffix == ".raw":
+        return open_raw(path, sensor_hw)
+    raise ValueError(f"{path}: unknown event file type {suffix!r} (expected .h5, .txt, "
+                     f".aedat4, .raw or an ECD folder)")
