@@ -1,0 +1,184 @@
+"""The Event Camera Dataset's text layout: ``events.txt`` (``t x y p``, seconds and 0/1),
+``images.txt`` + ``images/`` when present; a file or its folder. A numba parser reads
+it in blocks (bounded memory, exact nanoseconds from the decimal text)."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numba
+import numpy as np
+
+from esim_lite.core.contracts import READ_CHUNK_EVENTS
+from esim_lite.core.events import Events
+from model.data.formats.base import Recording, checked_events, gray_image, sorted_frames
+
+log = logging.getLogger(__name__)
+
+
+@numba.njit(cache=True)
+def _parse_text(buf, t_ns, xs, ys, ps):
+    """Parse lines ``t x y p`` from uint8 ``buf`` (complete lines). Times in seconds (plain
+    or scientific notation) are turned into integer nanoseconds digit by digit: exact for up
+    to 9 decimals, rounded to the nearest nanosecond beyond. Returns
+    (events parsed, index of the first bad line or -1, lines seen); ``#`` lines and blank
+    lines are skipped."""
+    n, i, size, line = 0, 0, len(buf), 0
+    while i < size:
+        while i < size and (buf[i] == 32 or buf[i] == 9 or buf[i] == 13):
+            i += 1
+        if i < size and buf[i] == 10:
+            i += 1
+            line += 1
+            continue
+        if i < size and buf[i] == 35:  # '#': comment line
+            while i < size and buf[i] != 10:
+                i += 1
+            i += 1
+            line += 1
+            continue
+        if i >= size:
+            break
+        # time: digits [. digits] [e|E [+|-] digits], kept as mantissa m and decimal
+        # exponent so that t = m 10^(exp - frac_digits) s is turned into ns exactly
+        m, fdigits, exp, ok = 0, 0, 0, False
+        while i < size and 48 <= buf[i] <= 57:
+            m = m * 10 + (buf[i] - 48)
+            i += 1
+            ok = True
+        if i < size and buf[i] == 46:
+            i += 1
+            while i < size and 48 <= buf[i] <= 57:
+                if fdigits < 12:  # beyond a picosecond nothing survives the rounding
+                    m = m * 10 + (buf[i] - 48)
+                    fdigits += 1
+                i += 1
+                ok = True
+        if ok and i < size and (buf[i] == 101 or buf[i] == 69):  # e/E: scientific notation
+            i += 1
+            eneg = False
+            if i < size and (buf[i] == 45 or buf[i] == 43):
+                eneg = buf[i] == 45
+                i += 1
+            got = False
+            while i < size and 48 <= buf[i] <= 57:
+                exp = exp * 10 + (buf[i] - 48)
+                i += 1
+                got = True
+            ok = ok and got and exp <= 18
+            if eneg:
+                exp = -exp
+        vals = np.zeros(3, np.int64)
+        for k in range(3):
+            while i < size and (buf[i] == 32 or buf[i] == 9 or buf[i] == 44):
+                i += 1
+            neg = False
+            if i < size and buf[i] == 45:
+                neg = True
+                i += 1
+            got = False
+            v = 0
+            while i < size and 48 <= buf[i] <= 57:
+                v = v * 10 + (buf[i] - 48)
+                i += 1
+                got = True
+            ok = ok and got
+            vals[k] = -v if neg else v
+        while i < size and (buf[i] == 32 or buf[i] == 9 or buf[i] == 13):
+            i += 1
+        if not ok or (i < size and buf[i] != 10):
+            return n, line, line
+        p10 = exp - fdigits + 9
+        if p10 >= 0:
+            t = m
+            for _ in range(p10):
+                t *= 10
+        else:  # round to the nearest nanosecond
+            q = 1
+            for _ in range(-p10):
+                q *= 10
+            t = (m + q // 2) // q
+        t_ns[n] = t
+        xs[n], ys[n], ps[n] = vals[0], vals[1], vals[2]
+        n += 1
+        line += 1
+        i += 1
+    return n, -1, line
+
+
+def _text_chunks(path: Path, size: int) -> Iterator[tuple]:
+    """Raw parsed arrays (t_ns, x, y, p) of ``path`` in blocks of about ``size`` lines."""
+    block = max(size, 1) * 32  # bytes: ~32 per ECD line
+    first_line = 0
+    with open(path, "rb") as f:
+        rest = b""
+        while True:
+            data = f.read(block)
+            buf = rest + data
+            if not buf:
+                return
+            cut = buf.rfind(b"\n") + 1 if data else len(buf)
+            if cut == 0:
+                rest = buf
+                continue
+            body, rest = buf[:cut], buf[cut:]
+            arr = np.frombuffer(body, np.uint8)
+            cap = body.count(b"\n") + 1
+            t = np.empty(cap, np.int64)
+            x, y, p = np.empty(cap, np.int64), np.empty(cap, np.int64), np.empty(cap, np.int64)
+            n, bad, lines = _parse_text(arr, t, x, y, p)
+            if bad >= 0:
+                text = body.split(b"\n")[bad].decode(errors="replace").strip()
+                raise ValueError(f"{path}: line {first_line + bad + 1} is not 't x y p': "
+                                 f"{text[:60]!r} (truncated or not an event file?)")
+            first_line += lines
+            yield t[:n], x[:n], y[:n], p[:n]
+            if not data:
+                return
+
+
+def open_text(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
+    folder = path if path.is_dir() else path.parent
+    events_file = folder / "events.txt" if path.is_dir() else path
+    if not events_file.is_file():
+        raise FileNotFoundError(f"{folder}: no events.txt")
+    images, times = [], []
+    index = folder / "images.txt"
+    if index.is_file():
+        for k, line in enumerate(index.read_text().splitlines()):
+            if not line.strip() or line.startswith("#"):
+                continue
+            parts = line.split()
+            if len(parts) != 2:
+                raise ValueError(f"{index}: line {k + 1} is not 't path'")
+            img = cv2.imread(str(folder / parts[1]), cv2.IMREAD_UNCHANGED)
+            if img is None:
+                raise ValueError(f"{index}: line {k + 1}: cannot read image {parts[1]}")
+            images.append(gray_image(img))
+            times.append(int(round(float(parts[0]) * 1e9)))
+    frames = sorted_frames(images, times, index)
+    hw = sensor_hw or (frames.hw if frames is not None else _text_extent(events_file))
+
+    def chunks(size: int) -> Iterator[Events]:
+        done = 0
+        for t, x, y, p in _text_chunks(events_file, size):
+            yield checked_events(x, y, t, p, hw, events_file, done)
+            done += len(t)
+
+    return Recording(events_file, "text", hw, frames, chunks)
+
+
+def _text_extent(path: Path) -> tuple[int, int]:
+    """(H, W) from the largest coordinates (no frames, no sensor size given)."""
+    mx = my = -1
+    for _, x, y, _ in _text_chunks(path, READ_CHUNK_EVENTS):
+        if len(x):
+            mx, my = max(mx, int(x.max())), max(my, int(y.max()))
+    if mx < 0:
+        raise ValueError(f"{path}: the recording holds no events")
+    log.warning("%s: no frames or sensor size; using %dx%d from the largest coordinates",
+                path, mx + 1, my + 1)
+    return my + 1, mx + 1

@@ -1,0 +1,53 @@
+"""event_utils / E2VID-style HDF5: ``events/xs, ys, ts, ps``, ``images/*`` with a
+``timestamp`` attribute, a ``sensor_resolution`` attribute."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from esim_lite.core.events import Events
+from model.data.formats.base import Recording, checked_events, gray_image, sorted_frames
+
+
+def open_event_hdf5(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
+    with h5py.File(path, "r") as f:
+        if not all(f"events/{k}" in f for k in ("xs", "ys", "ts", "ps")):
+            raise ValueError(f"{path}: no events/xs, ys, ts, ps datasets (not an event "
+                             f"HDF5 file)")
+        n = f["events/ts"].shape[0]
+        if any(f[f"events/{k}"].shape[0] != n for k in ("xs", "ys", "ps")):
+            raise ValueError(f"{path}: events/xs, ys, ts, ps have different lengths "
+                             f"(truncated file?)")
+        hw = sensor_hw or _sensor_of(f, path)
+        images, times = [], []
+        if "images" in f:
+            for name in sorted(f["images"]):
+                ds = f["images"][name]
+                if "timestamp" not in ds.attrs:
+                    raise ValueError(f"{path}: images/{name} has no timestamp attribute")
+                images.append(gray_image(ds[:]))
+                times.append(int(round(float(ds.attrs["timestamp"]) * 1e9)))
+    frames = sorted_frames(images, times, path)
+
+    def chunks(size: int) -> Iterator[Events]:
+        with h5py.File(path, "r") as f:
+            ev = f["events"]
+            for start in range(0, n, size):
+                sl = slice(start, min(start + size, n))
+                yield checked_events(ev["xs"][sl], ev["ys"][sl], np.round(ev["ts"][sl] * 1e9),
+                              ev["ps"][sl], hw, path, start)
+
+    return Recording(path, "hdf5", hw, frames, chunks)
+
+
+def _sensor_of(f: h5py.File, path: Path) -> tuple[int, int]:
+    if "sensor_resolution" in f.attrs:
+        h, w = (int(v) for v in f.attrs["sensor_resolution"])
+        return h, w
+    if "images" in f and len(f["images"]):
+        return tuple(f["images"][sorted(f["images"])[0]].shape[:2])
+    raise ValueError(f"{path}: no sensor_resolution attribute; give the sensor size")
