@@ -15,7 +15,6 @@ import logging
 import math
 import os
 import zlib
-from esim_lite.core.contracts import hr_camera, stack_fit_warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -25,12 +24,12 @@ import torch
 from torch.utils.data import Dataset
 
 from datagen.shard import ShardReader
+from esim_lite.core.contracts import hr_camera, stack_fit_warnings
+from esim_lite.core.stacking import StackConfig, stack_span_ns, stack_to_input, stacks_around
 from esim_lite.motion import planar_flow
 from esim_lite.pose import Pose
 from model.archs.flow import stack_flows
 from model.data.input_cache import InputCache
-from esim_lite.core.stacking import StackConfig, stack_span_ns, stack_to_input, stacks_around
-
 
 log = logging.getLogger(__name__)
 

@@ -31,7 +31,6 @@ import json
 import logging
 import os
 import shutil
-from esim_lite.core.contracts import hr_camera
 from collections.abc import Sequence
 from dataclasses import dataclass
 from multiprocessing import get_context
@@ -40,8 +39,9 @@ from pathlib import Path
 import numpy as np
 
 from datagen.shard import ShardReader
-from model.archs.flow import classical_flow, stack_to_gray
+from esim_lite.core.contracts import hr_camera
 from esim_lite.core.stacking import StackConfig, stacks_around
+from model.archs.flow import classical_flow, stack_to_gray
 
 log = logging.getLogger(__name__)
 

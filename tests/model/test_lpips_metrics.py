@@ -9,7 +9,7 @@ import torch
 from skimage import data
 from skimage.metrics import structural_similarity
 
-from model import lpips as lp
+from model.losses import lpips as lp
 from model.metrics.image import mse, psnr, psnr_from_mse, ssim
 
 
