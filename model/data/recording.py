@@ -46,7 +46,9 @@ def open_recording(path: str | Path, sensor_hw: tuple[int, int] | None = None,
                 is_shard = "schema_version" in f.attrs
         except OSError as exc:
             raise ValueError(f"{path}: not a readable HDF5 file ({exc})") from exc
-        return open_shard(path, sequence, sensor_hw) if is_shard else open_event_hdf5(path, sensor_hw)
+        if is_shard:
+            return open_shard(path, sequence, sensor_hw)
+        return open_event_hdf5(path, sensor_hw)
     if suffix == ".aedat4":
         return open_aedat4(path, sensor_hw)
     if suffix == ".raw":

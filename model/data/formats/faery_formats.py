@@ -44,8 +44,9 @@ def open_aedat4(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
         with faery.aedat.Decoder(path) as dec:
             for track, packet in dec:
                 if track.id == ev_id and len(packet):
-                    yield checked_events(packet["x"], packet["y"], packet["t"].astype(np.int64) * 1000,
-                                  packet["on"], hw, path)
+                    yield checked_events(packet["x"], packet["y"],
+                                         packet["t"].astype(np.int64) * 1000, packet["on"], hw,
+                                         path)
 
     return Recording(path, "aedat4", hw, sorted_frames(images, times, path), chunks)
 
@@ -65,7 +66,7 @@ def open_raw(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
             for packet in dec:
                 ev = packet.get("events")
                 if ev is not None and len(ev):
-                    yield checked_events(ev["x"], ev["y"], ev["t"].astype(np.int64) * 1000, ev["on"],
-                                  hw, path)
+                    yield checked_events(ev["x"], ev["y"], ev["t"].astype(np.int64) * 1000,
+                                         ev["on"], hw, path)
 
     return Recording(path, "raw", hw, None, chunks)
