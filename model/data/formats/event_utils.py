@@ -39,7 +39,7 @@ def open_event_hdf5(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
             for start in range(0, n, size):
                 sl = slice(start, min(start + size, n))
                 yield checked_events(ev["xs"][sl], ev["ys"][sl], np.round(ev["ts"][sl] * 1e9),
-                              ev["ps"][sl], hw, path, start)
+                                     ev["ps"][sl], hw, path, start)
 
     return Recording(path, "hdf5", hw, frames, chunks)
 
