@@ -221,3 +221,42 @@ def test_text_timestamps_in_scientific_notation(tmp_path):
     path.write_text("1.5e 1 2 1\n")
     with pytest.raises(ValueError, match="line 1 is not 't x y p'"):
         open_recording(path, sensor_hw=(8, 8)).read_all()
+
+
+def test_event_utils_files_from_a_colour_camera_read_as_its_converter_writes_them(tmp_path):
+    """event_utils' hdf5 packager, for a colour camera, stores ``sensor_resolution`` as the
+    image shape (H, W, 3), bool polarities, and uint8 BGR images tagged
+    ``type = color_bgr`` (with ``timestamp``, ``size`` and ``event_idx`` attributes)."""
+    import cv2
+
+    ev = events(hw=(30, 40))
+    rng = np.random.default_rng(3)
+    bgr = np.zeros((30, 40, 3), np.uint8)
+    bgr[..., 0] = 250  # strongly blue: BGR and RGB conversions disagree by far
+    bgr[..., 2] = rng.integers(0, 60, (30, 40))
+    path = tmp_path / "colour.h5"
+    with h5py.File(path, "w") as f:
+        f.attrs["sensor_resolution"] = [30, 40, 3]
+        f.create_dataset("events/xs", data=ev.x)
+        f.create_dataset("events/ys", data=ev.y)
+        f.create_dataset("events/ts", data=ev.t_ns * 1e-9)
+        f.create_dataset("events/ps", data=ev.p > 0)
+        ds = f.create_dataset("images/image000000000", data=bgr)
+        ds.attrs.update({"timestamp": 1.5, "size": bgr.shape, "type": "color_bgr",
+                         "event_idx": 0})
+    rec = open_recording(path)
+    assert rec.sensor_hw == (30, 40)
+    expected = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY).astype(np.float32) / 255
+    np.testing.assert_allclose(rec.frames.intensity[0], expected, atol=1e-6)
+    wrong = cv2.cvtColor(bgr, cv2.COLOR_RGB2GRAY).astype(np.float32) / 255
+    assert np.abs(rec.frames.intensity[0] - wrong).max() > 40 / 255
+    np.testing.assert_array_equal(rec.read_all().p, ev.p)
+
+
+def test_a_sensor_resolution_that_is_no_image_shape_is_refused(tmp_path):
+    path = tmp_path / "odd.h5"
+    write_hdf5(path, events(), with_frames=False)
+    with h5py.File(path, "a") as f:
+        f.attrs["sensor_resolution"] = [30, 40, 7]
+    with pytest.raises(ValueError, match="sensor_resolution"):
+        open_recording(path)

@@ -92,11 +92,15 @@ def checked_events(x, y, t_ns, p, hw, source: Path, offset: int = 0) -> Events:
                   np.where(p > 0, 1, -1).astype(np.int8), hw)
 
 
-def gray_image(pixels: np.ndarray) -> np.ndarray:
-    """float32 [0, 1] gray image from uint8/uint16 gray or RGB(A) pixels."""
+def gray_image(pixels: np.ndarray, order: str = "rgb") -> np.ndarray:
+    """float32 [0, 1] gray image from uint8/uint16 gray, or colour pixels whose channels are
+    in ``order`` (``rgb``, or ``bgr`` as OpenCV decodes and event_utils stores them)."""
     img = pixels
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[..., 0]
     if img.ndim == 3:
-        img = cv2.cvtColor(img[..., :3], cv2.COLOR_RGB2GRAY)
+        code = cv2.COLOR_BGR2GRAY if order == "bgr" else cv2.COLOR_RGB2GRAY
+        img = cv2.cvtColor(np.ascontiguousarray(img[..., :3]), code)
     scale = 65535.0 if img.dtype == np.uint16 else 255.0 if img.dtype == np.uint8 else 1.0
     return (img.astype(np.float32) / scale).clip(0, 1)
 

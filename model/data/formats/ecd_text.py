@@ -157,7 +157,7 @@ def open_text(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
             img = cv2.imread(str(folder / parts[1]), cv2.IMREAD_UNCHANGED)
             if img is None:
                 raise ValueError(f"{index}: line {k + 1}: cannot read image {parts[1]}")
-            images.append(gray_image(img))
+            images.append(gray_image(img, "bgr"))  # OpenCV decodes colour as BGR
             times.append(int(round(float(parts[0]) * 1e9)))
     frames = sorted_frames(images, times, index)
     hw = sensor_hw or (frames.hw if frames is not None else _text_extent(events_file))

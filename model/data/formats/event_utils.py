@@ -29,7 +29,9 @@ def open_event_hdf5(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
                 ds = f["images"][name]
                 if "timestamp" not in ds.attrs:
                     raise ValueError(f"{path}: images/{name} has no timestamp attribute")
-                images.append(gray_image(ds[:]))
+                kind = ds.attrs.get("type", "")
+                kind = kind.decode() if isinstance(kind, bytes) else str(kind)
+                images.append(gray_image(ds[:], "bgr" if kind == "color_bgr" else "rgb"))
                 times.append(int(round(float(ds.attrs["timestamp"]) * 1e9)))
     frames = sorted_frames(images, times, path)
 
@@ -46,8 +48,11 @@ def open_event_hdf5(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
 
 def _sensor_of(f: h5py.File, path: Path) -> tuple[int, int]:
     if "sensor_resolution" in f.attrs:
-        h, w = (int(v) for v in f.attrs["sensor_resolution"])
-        return h, w
+        res = [int(v) for v in np.ravel(f.attrs["sensor_resolution"])]
+        # event_utils' converter stores a colour camera's image shape, (H, W, 3)
+        if len(res) == 2 or (len(res) == 3 and res[2] in (1, 3, 4)):
+            return res[0], res[1]
+        raise ValueError(f"{path}: sensor_resolution {res} is not (H, W) or (H, W, channels)")
     if "images" in f and len(f["images"]):
         return tuple(f["images"][sorted(f["images"])[0]].shape[:2])
     raise ValueError(f"{path}: no sensor_resolution attribute; give the sensor size")
