@@ -69,6 +69,13 @@ def build_parser() -> argparse.ArgumentParser:
     pre = sub.add_parser("preview", help="a PNG per sequence: frames, events, SBN stack")
     pre.add_argument("target", help="a shard file or a folder of shards")
     pre.add_argument("--out", help="output folder (default: <target folder>/preview)")
+
+    exp = sub.add_parser("export", help="sequences in another tool's format (one file or "
+                         "folder each): event_utils HDF5, EVREAL .npy folder, ECD text")
+    exp.add_argument("target", help="a shard file or a folder of shards")
+    exp.add_argument("--format", required=True, choices=["event_utils", "evreal", "txt"])
+    exp.add_argument("--out", required=True, help="output folder")
+    exp.add_argument("--sequence", help="only this sequence (e.g. seq_000003)")
     return parser
 
 
@@ -122,6 +129,12 @@ def main(argv: list[str] | None = None) -> int:
             out = Path(args.out) if args.out else paths[0].parent / "preview"
             written = preview_shards(paths, out, StackConfig())
             print(f"wrote {len(written)} preview PNG(s) to {out.resolve()}")
+            return 0
+        if args.command == "export":
+            from datagen.export import export
+
+            written = export(paths, args.format, args.out, args.sequence)
+            print(f"wrote {len(written)} {args.format} sequence(s) to {Path(args.out).resolve()}")
             return 0
     except (ConfigError, FileNotFoundError, ValueError, OSError) as exc:
         print(f"datagen: error: {exc}", file=sys.stderr)

@@ -1,8 +1,8 @@
 """The HDF5 shard schema: one writer and one reader that everything else uses.
 
 A shard holds several sequences, one group each, named ``seq_{index:06d}``. Inside a group
-the layout follows event_utils / E2VID-style HDF5 so other tools can read a sequence by
-pointing at its group:
+the event datasets are named as in event_utils / E2VID HDF5 (``datagen export`` writes the
+files those tools' loaders open as they are):
 
 ```
 seq_000012/                      attrs: sensor_resolution [H, W], num_events, num_pos,
