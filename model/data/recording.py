@@ -4,6 +4,8 @@
 - e2sr shards (``shard_*.h5``; a ``sequence`` picks one, default the first);
 - event_utils / E2VID-style HDF5 (``events/xs, ys, ts, ps``; ``images/*`` with a
   ``timestamp`` attribute; ``sensor_resolution`` attribute);
+- EVREAL's dataset folders (``events_ts.npy``, ``events_xy.npy``, ``events_p.npy``,
+  ``images.npy``, ``images_ts.npy``, ``metadata.json``);
 - the Event Camera Dataset's text format (``events.txt``: ``t x y p`` in seconds and 0/1,
   with ``images.txt`` + ``images/`` when present), a file or its folder;
 - AEDAT4 from iniVation cameras (events and APS frames) and Prophesee EVT2/EVT3 ``.raw``,
@@ -25,6 +27,7 @@ import h5py
 from model.data.formats.base import Recording
 from model.data.formats.ecd_text import open_text
 from model.data.formats.event_utils import open_event_hdf5
+from model.data.formats.evreal import is_evreal, open_evreal
 from model.data.formats.faery_formats import open_aedat4, open_raw
 from model.data.formats.shard import open_shard
 
@@ -37,6 +40,8 @@ def open_recording(path: str | Path, sensor_hw: tuple[int, int] | None = None,
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file or folder")
+    if is_evreal(path):
+        return open_evreal(path, sensor_hw)
     if path.is_dir() or path.suffix == ".txt":
         return open_text(path, sensor_hw)
     suffix = path.suffix.lower()

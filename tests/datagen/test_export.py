@@ -123,3 +123,27 @@ def test_export_cli_writes_every_sequence_and_names_a_missing_one(shard, tmp_pat
                  "--sequence", "seq_9"]) == 2
     assert "no sequence 'seq_9'" in capsys.readouterr().err
     assert not (tmp_path / "t").exists() or not any((tmp_path / "t").iterdir())
+
+
+def test_evreal_folders_open_as_recordings(shard, record, tmp_path):
+    from model.data.recording import open_recording
+
+    (folder,) = export([shard], "evreal", tmp_path, "seq_000000")
+    rec = open_recording(folder)
+    assert rec.kind == "evreal" and rec.sensor_hw == record.events.sensor_hw
+    back = rec.read_all()
+    for field in ("x", "y", "t_ns", "p"):
+        np.testing.assert_array_equal(getattr(back, field), getattr(record.events, field))
+    lr = record.frames["lr"]
+    np.testing.assert_array_equal(rec.frames.t_ns, lr.t_ns)
+    assert np.abs(rec.frames.intensity - lr.intensity).max() <= 0.5 / 255 + 1e-6
+
+
+def test_a_broken_evreal_folder_is_named_with_its_problem(shard, tmp_path):
+    from model.data.recording import open_recording
+
+    (folder,) = export([shard], "evreal", tmp_path, "seq_000000")
+    np.save(folder / "events_p.npy", np.load(folder / "events_p.npy")[:-5])
+    with pytest.raises(ValueError, match="do not describe the same") as err:
+        open_recording(folder)
+    assert str(folder) in str(err.value)

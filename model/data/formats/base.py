@@ -21,7 +21,7 @@ class Recording:
 
     Attributes:
         path: the file.
-        kind: ``shard``, ``hdf5``, ``text``, ``aedat4`` or ``raw``.
+        kind: ``shard``, ``hdf5``, ``evreal``, ``text``, ``aedat4`` or ``raw``.
         sensor_hw: (H, W) of the event sensor.
         frames: APS frames (linear intensity in [0, 1], sorted by time), or None.
     """
