@@ -89,3 +89,18 @@ class Events:
         np.add.at(out[0], flat[self.p > 0], 1)
         np.add.at(out[1], flat[self.p < 0], 1)
         return out.reshape(2, h, w)
+
+    def to_tonic(self) -> tuple[np.ndarray, tuple[int, int, int]]:
+        """``(events, sensor_size)`` as tonic takes them: a structured array with fields
+        ``x``, ``y`` (int16), ``t`` (int64 microseconds, floor of ``t_ns / 1000``) and ``p``
+        (bool, True = ON), and ``sensor_size = (W, H, 2)``. tonic's transforms read ``t`` in
+        the unit of their time arguments; microseconds are what its datasets use."""
+        out = np.empty(len(self), TONIC_DTYPE)
+        out["x"], out["y"] = self.x, self.y
+        out["t"] = self.t_ns // 1000
+        out["p"] = self.p > 0
+        h, w = self.sensor_hw
+        return out, (w, h, 2)
+
+
+TONIC_DTYPE = np.dtype([("x", np.int16), ("y", np.int16), ("t", np.int64), ("p", np.bool_)])

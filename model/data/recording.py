@@ -23,6 +23,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import h5py
+import numpy as np
 
 from model.data.formats.base import Recording
 from model.data.formats.ecd_text import open_text
@@ -31,7 +32,7 @@ from model.data.formats.evreal import is_evreal, open_evreal
 from model.data.formats.faery_formats import open_aedat4, open_raw
 from model.data.formats.shard import open_shard
 
-__all__ = ["Recording", "open_recording"]
+__all__ = ["Recording", "open_recording", "tonic_events"]
 
 
 def open_recording(path: str | Path, sensor_hw: tuple[int, int] | None = None,
@@ -60,3 +61,10 @@ def open_recording(path: str | Path, sensor_hw: tuple[int, int] | None = None,
         return open_raw(path, sensor_hw)
     raise ValueError(f"{path}: unknown event file type {suffix!r} (expected .h5, .txt, "
                      f".aedat4, .raw or an ECD folder)")
+
+
+def tonic_events(path: str | Path, sensor_hw: tuple[int, int] | None = None,
+                 sequence: str | None = None) -> tuple[np.ndarray, tuple[int, int, int]]:
+    """Every event of any recording ``open_recording`` reads (a shard's ``sequence``
+    included) as tonic's structured array and ``sensor_size`` (see ``Events.to_tonic``)."""
+    return open_recording(path, sensor_hw, sequence).read_all().to_tonic()

@@ -260,3 +260,29 @@ def test_a_sensor_resolution_that_is_no_image_shape_is_refused(tmp_path):
         f.attrs["sensor_resolution"] = [30, 40, 7]
     with pytest.raises(ValueError, match="sensor_resolution"):
         open_recording(path)
+
+
+def test_tonic_events_are_the_structured_array_tonic_takes(tmp_path, tiny_shards):
+    from model.data.recording import tonic_events
+
+    ev = events()
+    write_hdf5(tmp_path / "e.h5", ev, with_frames=False)
+    arr, size = tonic_events(tmp_path / "e.h5")
+    assert arr.dtype.names == ("x", "y", "t", "p") and size == (40, 30, 2)  # (W, H, 2)
+    assert arr.dtype["x"] == np.int16 and arr.dtype["t"] == np.int64 and arr.dtype["p"] == np.bool_
+    np.testing.assert_array_equal(arr["t"], ev.t_ns // 1000)  # microseconds
+    np.testing.assert_array_equal(arr["p"], ev.p > 0)
+    np.testing.assert_array_equal(arr["x"], ev.x)
+    # a per-pixel count from the structured array equals our own (tonic's ToFrame by hand)
+    counts = np.zeros((2, 30, 40), np.int32)
+    np.add.at(counts, (np.where(arr["p"], 0, 1), arr["y"], arr["x"]), 1)
+    np.testing.assert_array_equal(counts, ev.count_image())
+    shard_arr, shard_size = tonic_events(sorted(tiny_shards.glob("shard_*.h5"))[0],
+                                         sequence="seq_000001")
+    assert shard_size == (64, 48, 2) and len(shard_arr) > 100
+    try:
+        import tonic
+    except ImportError:
+        return
+    frame = tonic.transforms.ToFrame(sensor_size=size, n_time_bins=1)(arr)
+    np.testing.assert_array_equal(frame.sum(axis=0)[[1, 0]], counts)
