@@ -32,6 +32,17 @@ def record(shard):
         return r.read("seq_000000")
 
 
+def assert_reads_back(rec, record) -> None:
+    """``rec`` (an exported file opened by our readers) holds ``record``'s events exactly
+    and its LR frames to within 8-bit rounding."""
+    back = rec.read_all()
+    for field in ("x", "y", "t_ns", "p"):
+        np.testing.assert_array_equal(getattr(back, field), getattr(record.events, field))
+    lr = record.frames["lr"]
+    np.testing.assert_array_equal(rec.frames.t_ns, lr.t_ns)
+    assert np.abs(rec.frames.intensity - lr.intensity).max() <= 0.5 / 255 + 1e-6
+
+
 def test_event_utils_layout_is_the_packagers(shard, record, tmp_path):
     (path,) = export([shard], "event_utils", tmp_path, "seq_000000")
     assert path.name == "shard_00000_seq_000000.h5"
@@ -63,12 +74,7 @@ def test_event_utils_export_reads_back_as_the_same_sequence(shard, record, tmp_p
     from model.data.recording import open_recording
 
     (path,) = export([shard], "event_utils", tmp_path, "seq_000000")
-    rec = open_recording(path)
-    back = rec.read_all()
-    for field in ("x", "y", "t_ns", "p"):
-        np.testing.assert_array_equal(getattr(back, field), getattr(record.events, field))
-    np.testing.assert_array_equal(rec.frames.t_ns, record.frames["lr"].t_ns)
-    assert np.abs(rec.frames.intensity - record.frames["lr"].intensity).max() <= 0.5 / 255 + 1e-6
+    assert_reads_back(open_recording(path), record)
 
 
 def test_evreal_folder_has_its_files_dtypes_and_index_rule(shard, record, tmp_path):
@@ -99,13 +105,8 @@ def test_ecd_text_folder_reads_back_and_has_calib_and_groundtruth(shard, record,
     from model.data.recording import open_recording
 
     (folder,) = export([shard], "txt", tmp_path, "seq_000000")
-    rec = open_recording(folder)
-    back = rec.read_all()
-    for field in ("x", "y", "t_ns", "p"):
-        np.testing.assert_array_equal(getattr(back, field), getattr(record.events, field))
+    assert_reads_back(open_recording(folder), record)
     lr = record.frames["lr"]
-    np.testing.assert_array_equal(rec.frames.t_ns, lr.t_ns)
-    assert np.abs(rec.frames.intensity - lr.intensity).max() <= 0.5 / 255 + 1e-6
     calib = [float(v) for v in (folder / "calib.txt").read_text().split()]
     c = record.cameras["lr"]
     assert calib == [c.fx, c.fy, c.cx, c.cy, 0, 0, 0, 0, 0]
@@ -131,12 +132,7 @@ def test_evreal_folders_open_as_recordings(shard, record, tmp_path):
     (folder,) = export([shard], "evreal", tmp_path, "seq_000000")
     rec = open_recording(folder)
     assert rec.kind == "evreal" and rec.sensor_hw == record.events.sensor_hw
-    back = rec.read_all()
-    for field in ("x", "y", "t_ns", "p"):
-        np.testing.assert_array_equal(getattr(back, field), getattr(record.events, field))
-    lr = record.frames["lr"]
-    np.testing.assert_array_equal(rec.frames.t_ns, lr.t_ns)
-    assert np.abs(rec.frames.intensity - lr.intensity).max() <= 0.5 / 255 + 1e-6
+    assert_reads_back(rec, record)
 
 
 def test_a_broken_evreal_folder_is_named_with_its_problem(shard, tmp_path):
