@@ -27,8 +27,6 @@ output is written under a temporary name and renamed into place.
 from __future__ import annotations
 
 import json
-import shutil
-import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
@@ -37,7 +35,7 @@ import h5py
 import numpy as np
 
 from datagen.shard import SequenceRecord, ShardReader
-from esim_lite.core.atomic import atomic_path
+from esim_lite.core.atomic import atomic_folder, atomic_path
 
 FORMATS = ("event_utils", "evreal", "txt")
 
@@ -88,17 +86,8 @@ def _write_event_utils(rec: SequenceRecord, target: Path) -> Path:
 
 
 def _folder(target: Path, fill: Callable[[Path], None]) -> Path:
-    """Build a folder under a temporary name beside ``target``, then rename it into place."""
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=target.name + ".", suffix=".tmp", dir=target.parent))
-    try:
+    with atomic_folder(target) as tmp:
         fill(tmp)
-        if target.exists():
-            shutil.rmtree(target)
-        tmp.rename(target)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return target
 
 

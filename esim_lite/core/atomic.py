@@ -45,3 +45,23 @@ def write_bytes(target: str | Path, data: bytes) -> Path:
 
 def write_text(target: str | Path, text: str) -> Path:
     return write_bytes(target, text.encode())
+
+
+@contextmanager
+def atomic_folder(target: str | Path) -> Iterator[Path]:
+    """``with atomic_folder(target) as tmp:`` fills a temporary folder beside ``target``;
+    when the block ends it replaces ``target`` by a rename (an existing ``target`` is removed
+    first); on an exception the temporary folder is removed and ``target`` is untouched."""
+    import shutil
+
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=target.name + ".", suffix=".tmp", dir=target.parent))
+    try:
+        yield tmp
+        if target.exists():
+            shutil.rmtree(target)
+        tmp.rename(target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise

@@ -62,3 +62,19 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def test_atomic_folders_replace_whole_folders_or_nothing(tmp_path):
+    import pytest
+
+    from esim_lite.core.atomic import atomic_folder
+
+    target = tmp_path / "out"
+    with atomic_folder(target) as tmp:
+        (tmp / "a.txt").write_text("1")
+    assert (target / "a.txt").read_text() == "1"
+    with pytest.raises(RuntimeError), atomic_folder(target) as tmp:
+        (tmp / "b.txt").write_text("2")
+        raise RuntimeError("interrupted")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no temporary left
+    assert sorted(p.name for p in target.iterdir()) == ["a.txt"]  # the old folder intact
