@@ -61,6 +61,9 @@ class RunConfig:
             ``model.central == first_pass`` (Duo-Pass).
         flow_init: a ``task: flow`` checkpoint initialising the learned FNet
             (``model.flow == learned``).
+        init_from: a network checkpoint or shipped model whose weights start this run (its
+            network may differ only in the scale; model/training/warm_start.py). A resumed
+            run takes its weights from its own checkpoint instead.
     """
 
     seed: int = 0
@@ -77,6 +80,7 @@ class RunConfig:
     threads: int | None = None
     first_pass: str | None = None
     flow_init: str | None = None
+    init_from: str | None = None
 
 
 @dataclass(frozen=True)

@@ -32,6 +32,7 @@ from model.training import checkpoint
 from model.training.config import OptimConfig, TrainConfig
 from model.training.curves import ValHistory
 from model.training.setup import Distributed, TrainData, build_data, epoch_batches, init_distributed
+from model.training.warm_start import warm_start
 
 log = logging.getLogger(__name__)
 
@@ -124,7 +125,10 @@ class TrainState:
 def build_state(cfg: TrainConfig, env: Distributed, steps_per_epoch: int) -> TrainState:
     """The network (with its first pass and flow initialisation), loss and optimiser."""
     run = cfg.run
-    net = E2SRI(cfg.model).to(env.device)
+    net = E2SRI(cfg.model)
+    if run.init_from:
+        warm_start(net, run.init_from)
+    net = net.to(env.device)
     cuda = env.device.type == "cuda"
     if run.channels_last:
         net = net.to(memory_format=torch.channels_last)

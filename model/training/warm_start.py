@@ -1,0 +1,90 @@
+"""Start a network from another one's weights: an x4 run from a trained x2 model.
+
+Only the scale may differ between the two networks. Every tensor whose name and shape agree
+is copied. In the LR-state variant the one scale-dependent layer is the sub-pixel lift
+(``mix.1``: ``scale^2 x hr_channels`` output channels before the pixel shuffle); when the new
+scale is a multiple ``k`` of the old one, each of its sub-pixel channels is copied from the old
+sub-pixel it falls in, so the lifted features start as the old ones repeated over ``k x k``
+pixels (nearest upsampling) instead of random. Anything else that differs in shape (the
+HR-state variant's deconvolutions) keeps its fresh initialisation and is named in the log.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+
+import torch
+
+from esim_lite.core.dataconf import from_mapping
+from model.archs.e2sri_arch import E2SRI, NetConfig
+from model.training import checkpoint
+
+log = logging.getLogger(__name__)
+
+LIFT = "mix.1"  # the sub-pixel convolution of the LR-state variant
+
+
+@dataclasses.dataclass(frozen=True)
+class WarmStart:
+    """What ``warm_start`` did: tensors copied as they were, lifted, and left fresh."""
+
+    copied: tuple[str, ...]
+    lifted: tuple[str, ...]
+    fresh: tuple[str, ...]
+
+
+def lift_index(old_scale: int, new_scale: int, fold: int, channels: int) -> torch.Tensor:
+    """For each output channel of the new lift, the old lift's channel it copies.
+
+    A pixel shuffle by ``r`` maps channel ``c r^2 + i r + j`` to sub-pixel ``(i, j)`` of
+    feature ``c``; new sub-pixel ``(i, j)`` lies in old sub-pixel ``(i // k, j // k)``.
+    """
+    r_old, r_new = old_scale * fold, new_scale * fold
+    k = r_new // r_old
+    c, i, j = torch.meshgrid(torch.arange(channels), torch.arange(r_new), torch.arange(r_new),
+                             indexing="ij")
+    return (c * r_old * r_old + (i // k) * r_old + (j // k)).reshape(-1)
+
+
+def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
+    """Copy the weights of the checkpoint or shipped model ``source`` into ``net``.
+
+    Raises:
+        ValueError: ``source`` is not a network checkpoint, its network differs from
+            ``net``'s in more than the scale, or the new scale is not a multiple of its scale.
+    """
+    ckpt = checkpoint.load(source)
+    old = from_mapping(NetConfig, ckpt["net"], source=str(source))
+    new = net.config
+    if dataclasses.replace(old, scale=new.scale) != new:
+        differ = [f.name for f in dataclasses.fields(NetConfig)
+                  if f.name != "scale" and getattr(old, f.name) != getattr(new, f.name)]
+        raise ValueError(f"{source}: its network differs in {', '.join(differ)}; a warm start "
+                         f"may change only the scale")
+    if new.scale % old.scale:
+        raise ValueError(f"{source}: an x{old.scale} model cannot start an x{new.scale} one "
+                         f"(the new scale must be a multiple of the old)")
+    saved = {k: v.float() if v.is_floating_point() else v for k, v in ckpt["model"].items()}
+    target = net.state_dict()
+    copied, lifted, fresh = [], [], []
+    with torch.no_grad():
+        for name, tensor in target.items():
+            value = saved.get(name)
+            if value is not None and value.shape == tensor.shape:
+                tensor.copy_(value)
+                copied.append(name)
+            elif value is not None and new.state == "lr" and name.startswith(LIFT + "."):
+                index = lift_index(old.scale, new.scale, new.fold, new.hr_channels)
+                tensor.copy_(value[index])
+                lifted.append(name)
+            else:
+                fresh.append(name)
+    if not copied:
+        raise ValueError(f"{source}: no tensor matches the network")
+    result = WarmStart(tuple(copied), tuple(lifted), tuple(fresh))
+    log.info("warm start from %s (x%d -> x%d): %d tensors copied, %d lifted, %d fresh%s",
+             source, old.scale, new.scale, len(copied), len(lifted), len(fresh),
+             f" ({', '.join(fresh)})" if fresh else "")
+    return result
