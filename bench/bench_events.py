@@ -1,26 +1,41 @@
-"""Event generation throughput: compiled kernel vs per-frame numpy vs a per-pixel Python loop.
+"""Event generation throughput: compiled kernel, numpy, a per-pixel Python loop and esim_py.
 
 Run: .venv/bin/python bench/bench_events.py [--frames N] [--repeats R]
-Frames are rendered first (homography, 128x128, photo texture, a default-speed trajectory
-sampled at a fixed step chosen so that about 0.02 events fire per pixel per step) and kept
-in memory as float32 log images; only event generation is timed. Two figures per
-implementation: the bare kernel (state update + crossings) and the full
-``EventSimulator.step_log`` (kernel + time sort + Events record), one core. The Python
-loop runs on the first 30 frames only (it is ~10^3 times slower).
+         [--esim-py bench/esim_py/build]   (after: bash bench/esim_py/build.sh PATH/TO/rpg_vid2e)
+
+Frames are rendered first (homography, 128x128, photo texture, a default-speed trajectory)
+and kept in memory as 8-bit images, the input esim_py reads. Two densities: a ``sparse`` case
+(frames 0.8 ms apart, about 0.03 events per pixel per step) and a ``dense`` one (the same
+texture moving fast: frames 7 ms apart, about 0.15). Timed, on one pinned core:
+
+- kernel: the bare per-pixel state update on float32 log images (numba, numpy, Python; the
+  compiled kernel also puts its events in time order, the others leave that to the step);
+- full: from 8-bit frames in memory to one time-sorted event list: ``EventSimulator.step``
+  per frame (u8 -> linear -> log, kernel, time order, Events record) and the final
+  ``Events.concatenate``; for esim_py, its own per-frame conversion (convertTo, cv::log),
+  ``imageCallback`` (crossings, per-frame std::sort) and the (N, 4) result matrix.
+
+Like for like: the same frames, ``log(u8 / 255 + 1e-3)``, Cp = Cn = 0.2, no refractory
+period, no noise. Every implementation is timed in turn within each repeat (medians), so a
+slow spell of the machine falls on all alike. The Python loop runs once, on the first 30
+frames only (~10^3 times slower).
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import sys
 import time
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 from skimage import data
 
 from esim_lite.camera import Intrinsics
+from esim_lite.core.events import Events
 from esim_lite.event_kernel import NEVER, TIE_TOL
 from esim_lite.event_reference import numpy_step, python_step
 from esim_lite.renderer import RenderConfig, make_renderer
@@ -30,79 +45,149 @@ from esim_lite.thresholds import ContrastThresholds
 from esim_lite.trajectory import TrajectoryConfig, plane_extent_covering, sample_trajectory
 
 THRESHOLD = 0.2
+LOG_EPS = 1e-3
+CASES = {"sparse": 0.8, "dense": 7.0}  # ms between frames
 
 
 def make_frames(n: int, step_s: float) -> np.ndarray:
+    """uint8[n + 1, 128, 128] frames of a textured plane along a smooth trajectory."""
     cam = Intrinsics.from_fov(128, 128, 60.0)
     traj = sample_trajectory(TrajectoryConfig(), 2.0, cam, np.random.default_rng(1))
     tex = cv2.resize(data.camera().astype(np.float32) / 255, (1024, 1024)).clip(0.01, 1)
     traj, w, h = plane_extent_covering(traj, cam, 1.0)
     r = make_renderer(PlanarScene(cv2.GaussianBlur(tex, (0, 0), 1.0), w, h), {"lr": cam},
                       RenderConfig(backend="homography"))
-    times = np.minimum(np.arange(n + 1) * step_s, traj.duration_s)
-    return np.stack([log_intensity(r.render("lr", traj.pose(t)), 1e-3) for t in times])
+    times = np.arange(n + 1) * step_s
+    times = times % (2 * traj.duration_s)  # ping-pong along the trajectory if it is short
+    times = np.where(times > traj.duration_s, 2 * traj.duration_s - times, times)
+    return np.stack([np.round(r.render("lr", traj.pose(t)).clip(0, 1) * 255).astype(np.uint8)
+                     for t in times])
 
 
-def time_kernel(kernel, frames: np.ndarray, repeats: int) -> tuple[float, int]:
-    """Median seconds for all steps of the bare kernel, and the number of events."""
+def linear(u8: np.ndarray) -> np.ndarray:
+    return u8.astype(np.float32) * np.float32(1 / 255)
+
+
+def kernel_run(kernel, logs: np.ndarray) -> int:
+    """All steps of a bare kernel from fresh state; returns the number of events."""
+    th = ContrastThresholds.uniform(THRESHOLD, THRESHOLD, logs.shape[1:])
+    ref = logs[0].astype(np.float64)
+    last = np.full(logs.shape[1:], NEVER, np.int64)
+    n_events = 0
+    for k in range(1, len(logs)):
+        out = kernel(logs[k - 1], logs[k], ref, last, th.pos_map, th.neg_map,
+                     (k - 1) * 1000, k * 1000, 0, TIE_TOL)
+        n_events += len(out[0])
+    return n_events
+
+
+def simulate(kind: str, frames: np.ndarray, step_ns: int) -> Events:
+    """Frames in memory -> one time-sorted event list, with e2sr's EventSimulator."""
     th = ContrastThresholds.uniform(THRESHOLD, THRESHOLD, frames.shape[1:])
-    runs, n_events = [], 0
-    for _ in range(repeats):
-        ref = frames[0].astype(np.float64)
-        last = np.full(frames.shape[1:], NEVER, np.int64)
-        n_events = 0
-        start = time.perf_counter()
-        for k in range(1, len(frames)):
-            out = kernel(frames[k - 1], frames[k], ref, last, th.pos_map, th.neg_map,
-                         (k - 1) * 1000, k * 1000, 0, TIE_TOL)
-            n_events += len(out[0])
-        runs.append(time.perf_counter() - start)
-    return statistics.median(runs), n_events
+    sim = EventSimulator(linear(frames[0]), 0, th, log_eps=LOG_EPS, kernel=kind)
+    parts = [sim.step(linear(frames[k]), k * step_ns) for k in range(1, len(frames))]
+    return Events.concatenate(parts, frames.shape[1:])
 
 
-def time_simulator(kind: str, frames: np.ndarray, repeats: int) -> float:
-    th = ContrastThresholds.uniform(THRESHOLD, THRESHOLD, frames.shape[1:])
-    runs = []
+def esim_py_events(module, frames: np.ndarray, step_ns: int) -> np.ndarray:
+    sim = module.EventSimulator(THRESHOLD, THRESHOLD, 0.0, LOG_EPS, True)
+    return module.generate_from_frames(sim, frames, [k * step_ns * 1e-9
+                                                     for k in range(len(frames))])
+
+
+def interleaved(jobs: dict, repeats: int) -> dict:
+    """Median seconds and last result of each job, the jobs taking turns in every repeat
+    (so that a slower or faster spell of the machine falls on all of them alike)."""
+    runs = {name: [] for name in jobs}
+    out = {}
     for _ in range(repeats):
-        sim = EventSimulator(np.ones(frames.shape[1:], np.float32), 0, th, kernel=kind)
-        sim.log_prev = frames[0].copy()
-        sim.ref[:] = frames[0]
-        start = time.perf_counter()
-        for k in range(1, len(frames)):
-            sim.step_log(frames[k], k * 1000)
-        runs.append(time.perf_counter() - start)
-    return statistics.median(runs)
+        for name, job in jobs.items():
+            start = time.perf_counter()
+            out[name] = job()
+            runs[name].append(time.perf_counter() - start)
+    return {name: (statistics.median(runs[name]), out[name]) for name in jobs}
+
+
+@dataclass
+class Row:
+    case: str
+    name: str
+    kernel_ups: float | None  # pixel-updates/s of the bare kernel
+    full_ups: float | None  # pixel-updates/s frames -> sorted list
+    events: int
+    density: float
+
+
+def run_case(case: str, step_ms: float, n_frames: int, repeats: int, esim_py) -> list[Row]:
+    frames = make_frames(n_frames, step_ms * 1e-3)
+    logs = log_intensity(linear(frames), LOG_EPS)
+    step_ns = int(round(step_ms * 1e6))
+    px = frames.shape[1] * frames.shape[2]
+    impls = {"numba (compiled)": (_NumbaKernel(), "numba", len(frames)),
+             "numpy per frame": (numpy_step, "numpy", len(frames))}
+    jobs = {}
+    for name, (kernel, kind, n) in impls.items():
+        jobs[name + "/kernel"] = lambda kernel=kernel, n=n: kernel_run(kernel, logs[:n])
+        jobs[name + "/full"] = lambda kind=kind, n=n: simulate(kind, frames[:n], step_ns)
+    if esim_py is not None:
+        jobs["esim_py (C++, from memory)/full"] = lambda: esim_py_events(esim_py, frames,
+                                                                          step_ns)
+    timed = interleaved(jobs, repeats)
+    python_n = 31  # the Python loop: once, on the first 30 steps
+    timed.update(interleaved({
+        "python per-pixel loop/kernel": lambda: kernel_run(python_step, logs[:python_n]),
+        "python per-pixel loop/full": lambda: simulate("python", frames[:python_n], step_ns)},
+        1))
+    rows = []
+    for name in [*impls, "python per-pixel loop", "esim_py (C++, from memory)"]:
+        if name + "/full" not in timed:
+            continue
+        n = python_n if name.startswith("python") else len(frames)
+        updates = px * (n - 1)
+        full, events = timed[name + "/full"]
+        kernel = timed.get(name + "/kernel", (None,))[0]
+        rows.append(Row(case, name, updates / kernel if kernel else None, updates / full,
+                        len(events), len(events) / updates))
+    return rows
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__)
+    parser = argparse.ArgumentParser(description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--frames", type=int, default=600)
     parser.add_argument("--repeats", type=int, default=5)
-    parser.add_argument("--step-ms", type=float, default=0.8,
-                        help="time between rendered frames (sets events per pixel per step)")
+    parser.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
+    parser.add_argument("--esim-py", metavar="DIR",
+                        help="folder holding the esim_py_memory module (bench/esim_py/build.sh)")
+    parser.add_argument("--core", type=int, default=None,
+                        help="CPU core to pin to (default: the last one available)")
     args = parser.parse_args(argv)
-    frames = make_frames(args.frames, args.step_ms * 1e-3)
-    numba_kernel = _NumbaKernel()
-    time_kernel(numba_kernel, frames[:3], 1)  # compile
-    px = frames.shape[1] * frames.shape[2]
+    core = args.core if args.core is not None else max(os.sched_getaffinity(0))
+    os.sched_setaffinity(0, {core})
+    cv2.setNumThreads(1)
+    esim_py = None
+    if args.esim_py:
+        sys.path.insert(0, args.esim_py)
+        import esim_py_memory as esim_py
+    warm = make_frames(3, 1e-3)  # compile
+    simulate("numba", warm, 1000), kernel_run(_NumbaKernel(), log_intensity(linear(warm),
+                                                                            LOG_EPS))
+    rows = [r for case in args.cases
+            for r in run_case(case, CASES[case], args.frames, args.repeats, esim_py)]
     print(f"# {' '.join(['python'] + sys.argv)}")
-    rows = []
-    for name, kernel, kind, n in (("numba (compiled)", numba_kernel, "numba", len(frames)),
-                                  ("numpy per frame", numpy_step, "numpy", len(frames)),
-                                  ("python per-pixel loop", python_step, "python", 31)):
-        reps = args.repeats if kind != "python" else 1
-        sec, n_ev = time_kernel(kernel, frames[:n], reps)
-        full = time_simulator(kind, frames[:n], reps)
-        updates = px * (n - 1)
-        rows.append((name, updates / sec, n_ev / sec, updates / full, n_ev / updates))
-    print(f"# 128x128, {args.frames} steps of {args.step_ms} ms, C = {THRESHOLD}, "
-          f"{rows[0][4]:.4f} events per pixel per step, one core")
-    print("| implementation | kernel Mpx-updates/s | kernel Mevents/s | full step Mpx-updates/s |"
-          " speedup vs python |")
-    print("|---|---|---|---|---|")
-    for name, ups, eps, full, _ in rows:
-        print(f"| {name} | {ups / 1e6:.1f} | {eps / 1e6:.2f} | {full / 1e6:.1f} | "
-              f"{ups / rows[-1][1]:.0f}x |")
+    print(f"# 128x128, {args.frames} steps, C = {THRESHOLD}, 8-bit frames in memory, "
+          f"one core (cpu {core})")
+    print("| case | implementation | events/px/step | events | kernel Mpx-updates/s |"
+          " full Mpx-updates/s | full vs esim_py |")
+    print("|---|---|---|---|---|---|---|")
+    for case in args.cases:
+        mine = [r for r in rows if r.case == case]
+        ref = next((r.full_ups for r in mine if r.name.startswith("esim_py")), None)
+        for r in mine:
+            kern = f"{r.kernel_ups / 1e6:.1f}" if r.kernel_ups else "-"
+            vs = f"{r.full_ups / ref:.2f}x" if ref else "-"
+            print(f"| {case} | {r.name} | {r.density:.4f} | {r.events:,} | {kern} | "
+                  f"{r.full_ups / 1e6:.1f} | {vs} |")
     return 0
 
 

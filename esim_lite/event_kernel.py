@@ -15,6 +15,11 @@ of exactly ``C`` (up to float32 rounding of the log image, < 5e-7 for ``|L| < 8`
 exactly one event, stamped at ``t1``. The reference is kept in float64 and advanced by
 ``n * C`` per step (one rounding per step, not per event), so it does not drift over
 millions of events the way repeated float32 additions do.
+
+Speed (bench/bench_events.py): a step runs in two passes, a vectorised count of the levels
+every pixel reaches (which sizes the output once) and the emission loop over the pixels
+that reach one, whose buffers therefore never move; then a radix sort by time puts the
+events in the order ``np.lexsort((x, y, t))`` would, so the caller sorts nothing.
 """
 
 from __future__ import annotations
@@ -59,25 +64,55 @@ def esim_step(l0, l1, ref, last_t, c_pos, c_neg, t0, t1, refractory_ns, tol,
         (n, buf_x, buf_y, buf_t, buf_p): the first ``n`` buffer entries are the events, in
         pixel order (row-major), each pixel's events in time order.
     """
+    levels = np.empty(l1.shape, np.int64)
+    need = _count_levels(l1, ref, c_pos, c_neg, tol, levels)
+    if need > buf_x.shape[0]:
+        buf_x, buf_y, buf_t, buf_p = _grow(buf_x, buf_y, buf_t, buf_p, need)
+    n = _emit(l0, l1, ref, last_t, c_pos, c_neg, levels, t0, t1, refractory_ns,
+              buf_x, buf_y, buf_t, buf_p)
+    return n, buf_x, buf_y, buf_t, buf_p
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _count_levels(l1, ref, c_pos, c_neg, tol, levels):
+    """First pass: ``levels[y, x]`` = signed number of threshold levels the pixel reaches
+    (+k ON, -k OFF, 0 none); returns their total, the most events the step can emit.
+    Written as selects and compiled with numpy's error model (thresholds are positive, so
+    no division by zero is possible and none needs checking): the compiler vectorises it."""
+    h, w = l1.shape
+    total = 0
+    for y in range(h):
+        for x in range(w):
+            d = np.float64(l1[y, x]) - ref[y, x]
+            up = d >= c_pos[y, x] - tol
+            down = d <= tol - c_neg[y, x]
+            c = c_pos[y, x] if up else -c_neg[y, x]
+            k = int(np.floor((d + (tol if up else -tol)) / c)) if up or down else 0
+            levels[y, x] = k if up else -k
+            total += k
+    return total
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _emit(l0, l1, ref, last_t, c_pos, c_neg, levels, t0, t1, refractory_ns,
+          buf_x, buf_y, buf_t, buf_p):
+    """Second pass: the events of every pixel with levels, into buffers large enough for
+    all of them (kept out of the first pass and never reallocated here, so the loop keeps
+    the buffers' pointers in registers)."""
     h, w = l1.shape
     dt = float(t1 - t0)
     n = 0
     for y in range(h):
         for x in range(w):
+            signed = levels[y, x]
+            if signed == 0:
+                continue
+            if signed > 0:
+                k, c, pol = signed, c_pos[y, x], 1
+            else:
+                k, c, pol = -signed, -c_neg[y, x], -1
             r = ref[y, x]
             new = np.float64(l1[y, x])
-            d = new - r
-            if d >= c_pos[y, x] - tol:
-                c = c_pos[y, x]
-                pol = 1
-            elif d <= tol - c_neg[y, x]:
-                c = -c_neg[y, x]
-                pol = -1
-            else:
-                continue
-            k = int(np.floor((d + pol * tol) / c))
-            if n + k > buf_x.shape[0]:
-                buf_x, buf_y, buf_t, buf_p = _grow(buf_x, buf_y, buf_t, buf_p, n + k)
             old = np.float64(l0[y, x])
             slope = new - old
             last = last_t[y, x]
@@ -96,4 +131,70 @@ def esim_step(l0, l1, ref, last_t, c_pos, c_neg, t0, t1, refractory_ns, tol,
                     last = t
             last_t[y, x] = last
             ref[y, x] = r + k * c
-    return n, buf_x, buf_y, buf_t, buf_p
+    return n
+
+
+@numba.njit(cache=True, nogil=True)
+def time_order(t, n, t0, span):
+    """Stable permutation that sorts ``t[:n]`` (int64, all in ``[t0, t0 + span]``) by time.
+
+    An LSD radix sort on the offsets ``t - t0`` in bytes, as many passes as ``span`` has bytes,
+    skipping a pass whose byte is the same for every event: O(n) per pass, and stable, so
+    events with equal times keep the order they were emitted in.
+    """
+    order = np.arange(n)
+    key = np.empty(n, np.int64)
+    for i in range(n):
+        key[i] = t[i] - t0
+    tmp_order = np.empty(n, np.int64)
+    tmp_key = np.empty(n, np.int64)
+    count = np.empty(256, np.int64)
+    shift = 0
+    while shift < 63 and (span >> shift) > 0:
+        count[:] = 0
+        for i in range(n):
+            count[(key[i] >> shift) & 255] += 1
+        if n > 0 and count[(key[0] >> shift) & 255] != n:
+            total = 0
+            for d in range(256):
+                c = count[d]
+                count[d] = total
+                total += c
+            for i in range(n):
+                d = (key[i] >> shift) & 255
+                j = count[d]
+                tmp_order[j] = order[i]
+                tmp_key[j] = key[i]
+                count[d] = j + 1
+            order, tmp_order = tmp_order, order
+            key, tmp_key = tmp_key, key
+        shift += 8
+    return order
+
+
+@numba.njit(cache=True, nogil=True)
+def esim_step_sorted(l0, l1, ref, last_t, c_pos, c_neg, t0, t1, refractory_ns, tol,
+                     buf_x, buf_y, buf_t, buf_p):
+    """:func:`esim_step` with its events returned in time order, in new exact-size arrays.
+
+    Pixels are visited in row-major order and each pixel's events come out in time order, so a
+    stable sort by time gives the order of ``np.lexsort((x, y, t))``: by time, then row, then
+    column, then emission.
+
+    Returns:
+        (x, y, t, p, buf_x, buf_y, buf_t, buf_p): the events, and the (possibly grown) buffers.
+    """
+    n, buf_x, buf_y, buf_t, buf_p = esim_step(l0, l1, ref, last_t, c_pos, c_neg, t0, t1,
+                                              refractory_ns, tol, buf_x, buf_y, buf_t, buf_p)
+    order = time_order(buf_t, n, t0, t1 - t0)
+    x = np.empty(n, np.int16)
+    y = np.empty(n, np.int16)
+    t = np.empty(n, np.int64)
+    p = np.empty(n, np.int8)
+    for i in range(n):
+        j = order[i]
+        x[i] = buf_x[j]
+        y[i] = buf_y[j]
+        t[i] = buf_t[j]
+        p[i] = buf_p[j]
+    return x, y, t, p, buf_x, buf_y, buf_t, buf_p

@@ -8,7 +8,7 @@ from typing import Literal
 import numpy as np
 
 from esim_lite.core.events import Events
-from esim_lite.event_kernel import NEVER, TIE_TOL, esim_step
+from esim_lite.event_kernel import NEVER, TIE_TOL, esim_step_sorted
 from esim_lite.event_reference import numpy_step, python_step
 from esim_lite.noise import NoiseConfig, NoiseModel
 from esim_lite.thresholds import ContrastThresholds, ThresholdConfig
@@ -40,22 +40,27 @@ class EventConfig:
 
 
 class _NumbaKernel:
-    """Adapts :func:`esim_step` to the reference signature, reusing its output buffers."""
+    """Adapts :func:`esim_step_sorted` to the reference signature, reusing its work buffers.
+    Its events come out in time order (``in_time_order``), so the simulator does not sort."""
+
+    in_time_order = True
 
     def __init__(self) -> None:
         self.bufs = (np.empty(4096, np.int16), np.empty(4096, np.int16),
                      np.empty(4096, np.int64), np.empty(4096, np.int8))
 
     def __call__(self, l0, l1, ref, last_t, c_pos, c_neg, t0, t1, refractory_ns, tol):
-        n, *bufs = esim_step(l0, l1, ref, last_t, c_pos, c_neg, np.int64(t0), np.int64(t1),
-                             np.int64(refractory_ns), tol, *self.bufs)
-        self.bufs = tuple(bufs)
-        return tuple(b[:n].copy() for b in bufs)
+        bx, by, bt, bp = self.bufs  # Python ints arrive in numba as int64
+        x, y, t, p, bx, by, bt, bp = esim_step_sorted(l0, l1, ref, last_t, c_pos, c_neg, t0, t1,
+                                                      refractory_ns, tol, bx, by, bt, bp)
+        self.bufs = (bx, by, bt, bp)
+        return x, y, t, p
 
 
 def log_intensity(intensity: np.ndarray, log_eps: float) -> np.ndarray:
-    """float32 ``log(log_eps + I)`` of a linear intensity image."""
-    return np.log(np.asarray(intensity, np.float32) + np.float32(log_eps))
+    """float32 ``log(log_eps + I)`` of a linear intensity image (one new array)."""
+    out = np.add(intensity, np.float32(log_eps), dtype=np.float32)
+    return np.log(out, out=out)
 
 
 class EventSimulator:
@@ -111,11 +116,15 @@ class EventSimulator:
         cur = self._effective_log(np.ascontiguousarray(log_img, np.float32), t_ns)
         x, y, t, p = self._kernel(self.log_prev, cur, self.ref, self.last_t, self._c_pos,
                                   self._c_neg, self.t_ns, t_ns, self.refractory_ns, TIE_TOL)
+        in_order = getattr(self._kernel, "in_time_order", False)
         if self.noise is not None:
             nx, ny, nt, np_ = self.noise.events(self.t_ns, t_ns)
             if len(nt):
                 x, y = np.concatenate([x, nx]), np.concatenate([y, ny])
                 t, p = np.concatenate([t, nt]), np.concatenate([p, np_])
-        order = np.lexsort((x, y, t))
+                in_order = False
         self.log_prev, self.t_ns = cur, t_ns
-        return Events(x[order], y[order], t[order], p[order], self.hw)
+        if not in_order:  # by time, then row, then column (stable: then emission)
+            order = np.lexsort((x, y, t))
+            x, y, t, p = x[order], y[order], t[order], p[order]
+        return Events(x, y, t, p, self.hw)
