@@ -16,10 +16,11 @@ exactly one event, stamped at ``t1``. The reference is kept in float64 and advan
 ``n * C`` per step (one rounding per step, not per event), so it does not drift over
 millions of events the way repeated float32 additions do.
 
-Speed (bench/bench_events.py): a step runs in two passes, a vectorised count of the levels
-every pixel reaches (which sizes the output once) and the emission loop over the pixels
-that reach one, whose buffers therefore never move; then a radix sort by time puts the
-events in the order ``np.lexsort((x, y, t))`` would, so the caller sorts nothing.
+Speed (bench/bench_events.py): a step runs in two passes, a vectorised flagging of the
+pixels that reach a level and the emission loop over the flagged ones, which never
+reallocates its buffers (when they are full it returns, and the caller grows them and
+resumes at that pixel); then a radix sort by time puts the events in the order
+``np.lexsort((x, y, t))`` would, so the caller sorts nothing.
 """
 
 from __future__ import annotations
@@ -64,74 +65,84 @@ def esim_step(l0, l1, ref, last_t, c_pos, c_neg, t0, t1, refractory_ns, tol,
         (n, buf_x, buf_y, buf_t, buf_p): the first ``n`` buffer entries are the events, in
         pixel order (row-major), each pixel's events in time order.
     """
-    levels = np.empty(l1.shape, np.int64)
-    need = _count_levels(l1, ref, c_pos, c_neg, tol, levels)
-    if need > buf_x.shape[0]:
-        buf_x, buf_y, buf_t, buf_p = _grow(buf_x, buf_y, buf_t, buf_p, need)
-    n = _emit(l0, l1, ref, last_t, c_pos, c_neg, levels, t0, t1, refractory_ns,
-              buf_x, buf_y, buf_t, buf_p)
-    return n, buf_x, buf_y, buf_t, buf_p
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _count_levels(l1, ref, c_pos, c_neg, tol, levels):
-    """First pass: ``levels[y, x]`` = signed number of threshold levels the pixel reaches
-    (+k ON, -k OFF, 0 none); returns their total, the most events the step can emit.
-    Written as selects and compiled with numpy's error model (thresholds are positive, so
-    no division by zero is possible and none needs checking): the compiler vectorises it."""
     h, w = l1.shape
-    total = 0
+    padded = np.zeros((h * w + 7) // 8 * 8, np.int8)  # whole 8-byte words
+    flags = padded[:h * w].reshape(h, w)
+    _flag_pixels(l1, ref, c_pos, c_neg, tol, flags)
+    words = padded.view(np.uint64)
+    n, q = 0, 0
+    while True:
+        n, q = _emit(l0, l1, ref, last_t, c_pos, c_neg, flags, words, t0, t1, refractory_ns,
+                     tol, buf_x, buf_y, buf_t, buf_p, n, q)
+        if q == h * w:
+            return n, buf_x, buf_y, buf_t, buf_p
+        buf_x, buf_y, buf_t, buf_p = _grow(buf_x, buf_y, buf_t, buf_p, 0)
+
+
+@numba.njit(cache=True, nogil=True)
+def _flag_pixels(l1, ref, c_pos, c_neg, tol, flags):
+    """First pass: ``flags[y, x]`` = +1 where the pixel reaches an ON level, -1 an OFF
+    level, 0 neither. Compares and selects only, so the compiler vectorises it."""
+    h, w = l1.shape
     for y in range(h):
         for x in range(w):
             d = np.float64(l1[y, x]) - ref[y, x]
             up = d >= c_pos[y, x] - tol
             down = d <= tol - c_neg[y, x]
-            c = c_pos[y, x] if up else -c_neg[y, x]
-            k = int(np.floor((d + (tol if up else -tol)) / c)) if up or down else 0
-            levels[y, x] = k if up else -k
-            total += k
-    return total
+            flags[y, x] = 1 if up else (-1 if down else 0)
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _emit(l0, l1, ref, last_t, c_pos, c_neg, levels, t0, t1, refractory_ns,
-          buf_x, buf_y, buf_t, buf_p):
-    """Second pass: the events of every pixel with levels, into buffers large enough for
-    all of them (kept out of the first pass and never reallocated here, so the loop keeps
-    the buffers' pointers in registers)."""
+def _emit(l0, l1, ref, last_t, c_pos, c_neg, flags, words, t0, t1, refractory_ns, tol,
+          buf_x, buf_y, buf_t, buf_p, n, start):
+    """Second pass, from pixel ``start`` (row-major index) with ``n`` events already in the
+    buffers: the events of every flagged pixel. ``words``: the flags read 8 at a time, so
+    that runs of 8 quiet pixels cost one test. Stops before a pixel whose events would not
+    fit and returns ``(n, that pixel)`` so that the caller grows the buffers and resumes
+    (``(n, H * W)`` when done); the buffers are never reallocated inside this loop, so it
+    keeps their pointers in registers."""
     h, w = l1.shape
+    size = h * w
     dt = float(t1 - t0)
-    n = 0
-    for y in range(h):
-        for x in range(w):
-            signed = levels[y, x]
-            if signed == 0:
-                continue
-            if signed > 0:
-                k, c, pol = signed, c_pos[y, x], 1
-            else:
-                k, c, pol = -signed, -c_neg[y, x], -1
-            r = ref[y, x]
-            new = np.float64(l1[y, x])
-            old = np.float64(l0[y, x])
-            slope = new - old
-            last = last_t[y, x]
-            for i in range(1, k + 1):
-                # Levels the line does not reach from above (slope of the wrong sign: only
-                # when the caller moved ref behind L0) were already passed at t0.
-                frac = (r + i * c - old) / slope if slope * pol > 0 else 0.0
-                frac = min(max(frac, 0.0), 1.0)
-                t = t0 + np.int64(np.floor(frac * dt + 0.5))
-                if t - last >= refractory_ns:
-                    buf_x[n] = x
-                    buf_y[n] = y
-                    buf_t[n] = t
-                    buf_p[n] = pol
-                    n += 1
-                    last = t
-            last_t[y, x] = last
-            ref[y, x] = r + k * c
-    return n
+    cap = buf_x.shape[0]
+    for wi in range(start // 8, words.shape[0]):
+        if words[wi] == 0:
+            continue
+        first = max(8 * wi, start)
+        y = first // w
+        x = first - y * w
+        for q in range(first, min(8 * wi + 8, size)):
+            pol = flags[y, x]
+            if pol != 0:
+                c = c_pos[y, x] if pol > 0 else -c_neg[y, x]
+                r = ref[y, x]
+                new = np.float64(l1[y, x])
+                k = int(np.floor((new - r + pol * tol) / c))
+                if n + k > cap:
+                    return n, q
+                old = np.float64(l0[y, x])
+                slope = new - old
+                last = last_t[y, x]
+                for i in range(1, k + 1):
+                    # Levels the line does not reach from above (slope of the wrong sign:
+                    # only when the caller moved ref behind L0) were already passed at t0.
+                    frac = (r + i * c - old) / slope if slope * pol > 0 else 0.0
+                    frac = min(max(frac, 0.0), 1.0)
+                    t = t0 + np.int64(np.floor(frac * dt + 0.5))
+                    if t - last >= refractory_ns:
+                        buf_x[n] = x
+                        buf_y[n] = y
+                        buf_t[n] = t
+                        buf_p[n] = pol
+                        n += 1
+                        last = t
+                last_t[y, x] = last
+                ref[y, x] = r + k * c
+            x += 1
+            if x == w:
+                x = 0
+                y += 1
+    return n, size
 
 
 @numba.njit(cache=True, nogil=True)
@@ -174,18 +185,22 @@ def time_order(t, n, t0, span):
 
 @numba.njit(cache=True, nogil=True)
 def esim_step_sorted(l0, l1, ref, last_t, c_pos, c_neg, t0, t1, refractory_ns, tol,
-                     buf_x, buf_y, buf_t, buf_p):
+                     capacity):
     """:func:`esim_step` with its events returned in time order, in new exact-size arrays.
 
     Pixels are visited in row-major order and each pixel's events come out in time order, so a
     stable sort by time gives the order of ``np.lexsort((x, y, t))``: by time, then row, then
-    column, then emission.
+    column, then emission. ``capacity``: size of the first work buffers (a guess of the
+    number of events; they grow as needed).
 
     Returns:
-        (x, y, t, p, buf_x, buf_y, buf_t, buf_p): the events, and the (possibly grown) buffers.
+        (x, y, t, p): the events.
     """
-    n, buf_x, buf_y, buf_t, buf_p = esim_step(l0, l1, ref, last_t, c_pos, c_neg, t0, t1,
-                                              refractory_ns, tol, buf_x, buf_y, buf_t, buf_p)
+    cap = max(capacity, 16)
+    n, buf_x, buf_y, buf_t, buf_p = esim_step(
+        l0, l1, ref, last_t, c_pos, c_neg, t0, t1, refractory_ns, tol,
+        np.empty(cap, np.int16), np.empty(cap, np.int16), np.empty(cap, np.int64),
+        np.empty(cap, np.int8))
     order = time_order(buf_t, n, t0, t1 - t0)
     x = np.empty(n, np.int16)
     y = np.empty(n, np.int16)
@@ -197,4 +212,4 @@ def esim_step_sorted(l0, l1, ref, last_t, c_pos, c_neg, t0, t1, refractory_ns, t
         y[i] = buf_y[j]
         t[i] = buf_t[j]
         p[i] = buf_p[j]
-    return x, y, t, p, buf_x, buf_y, buf_t, buf_p
+    return x, y, t, p

@@ -40,21 +40,20 @@ class EventConfig:
 
 
 class _NumbaKernel:
-    """Adapts :func:`esim_step_sorted` to the reference signature, reusing its work buffers.
-    Its events come out in time order (``in_time_order``), so the simulator does not sort."""
+    """Adapts :func:`esim_step_sorted` to the reference signature. Its events come out in
+    time order (``in_time_order``), so the simulator does not sort them; its work buffers
+    start at twice the previous step's event count."""
 
     in_time_order = True
 
     def __init__(self) -> None:
-        self.bufs = (np.empty(4096, np.int16), np.empty(4096, np.int16),
-                     np.empty(4096, np.int64), np.empty(4096, np.int8))
+        self.capacity = 4096
 
     def __call__(self, l0, l1, ref, last_t, c_pos, c_neg, t0, t1, refractory_ns, tol):
-        bx, by, bt, bp = self.bufs  # Python ints arrive in numba as int64
-        x, y, t, p, bx, by, bt, bp = esim_step_sorted(l0, l1, ref, last_t, c_pos, c_neg, t0, t1,
-                                                      refractory_ns, tol, bx, by, bt, bp)
-        self.bufs = (bx, by, bt, bp)
-        return x, y, t, p
+        events = esim_step_sorted(l0, l1, ref, last_t, c_pos, c_neg, t0, t1, refractory_ns,
+                                  tol, self.capacity)
+        self.capacity = max(4096, 2 * len(events[0]))
+        return events
 
 
 def log_intensity(intensity: np.ndarray, log_eps: float) -> np.ndarray:
@@ -88,6 +87,7 @@ class EventSimulator:
         self.noise = noise
         self._kernel = {"numba": _NumbaKernel, "numpy": lambda: numpy_step,
                         "python": lambda: python_step}[kernel]()
+        self._kernel_in_order = bool(getattr(self._kernel, "in_time_order", False))
         self._c_pos = np.ascontiguousarray(thresholds.pos_map, np.float64)
         self._c_neg = np.ascontiguousarray(thresholds.neg_map, np.float64)
         self.t0_ns = int(t0_ns)
@@ -113,10 +113,12 @@ class EventSimulator:
             raise ValueError(f"samples must move forward in time: {t_ns} <= {self.t_ns}")
         if log_img.shape != self.hw:
             raise ValueError(f"sample shape {log_img.shape} does not match sensor {self.hw}")
-        cur = self._effective_log(np.ascontiguousarray(log_img, np.float32), t_ns)
+        cur = np.ascontiguousarray(log_img, np.float32)
+        if self.noise is not None:
+            cur = self._effective_log(cur, t_ns)
         x, y, t, p = self._kernel(self.log_prev, cur, self.ref, self.last_t, self._c_pos,
                                   self._c_neg, self.t_ns, t_ns, self.refractory_ns, TIE_TOL)
-        in_order = getattr(self._kernel, "in_time_order", False)
+        in_order = self._kernel_in_order
         if self.noise is not None:
             nx, ny, nt, np_ = self.noise.events(self.t_ns, t_ns)
             if len(nt):
@@ -127,4 +129,5 @@ class EventSimulator:
         if not in_order:  # by time, then row, then column (stable: then emission)
             order = np.lexsort((x, y, t))
             x, y, t, p = x[order], y[order], t[order], p[order]
-        return Events(x, y, t, p, self.hw)
+            return Events(x, y, t, p, self.hw)
+        return Events.trusted(x, y, t, p, self.hw)  # the compiled kernel's own arrays

@@ -39,6 +39,18 @@ class Events:
         h, w = self.sensor_hw
         object.__setattr__(self, "sensor_hw", (int(h), int(w)))
 
+    @classmethod
+    def trusted(cls, x: np.ndarray, y: np.ndarray, t_ns: np.ndarray, p: np.ndarray,
+                sensor_hw: tuple[int, int]) -> Events:
+        """The record without the field checks, for a producer that made the arrays itself
+        with these dtypes and equal lengths (the simulator's kernel, once per render
+        sample); everything else goes through the checked constructor."""
+        events = object.__new__(cls)
+        for name, value in (("x", x), ("y", y), ("t_ns", t_ns), ("p", p),
+                            ("sensor_hw", sensor_hw)):
+            object.__setattr__(events, name, value)
+        return events
+
     def __len__(self) -> int:
         return len(self.t_ns)
 

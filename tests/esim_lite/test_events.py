@@ -78,3 +78,13 @@ def test_atomic_folders_replace_whole_folders_or_nothing(tmp_path):
         raise RuntimeError("interrupted")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]  # no temporary left
     assert sorted(p.name for p in target.iterdir()) == ["a.txt"]  # the old folder intact
+
+
+def test_the_trusted_constructor_builds_the_same_record():
+    a = make(4)
+    b = Events.trusted(a.x, a.y, a.t_ns, a.p, (4, 8))
+    assert isinstance(b, Events) and b.sensor_hw == a.sensor_hw and len(b) == 4
+    for name in ("x", "y", "t_ns", "p"):
+        assert getattr(b, name) is getattr(a, name)
+    with pytest.raises(AttributeError):  # still frozen
+        b.x = a.y
