@@ -122,11 +122,14 @@ class TrainState:
         return self.seconds_before + time.perf_counter() - self.start
 
 
-def build_state(cfg: TrainConfig, env: Distributed, steps_per_epoch: int) -> TrainState:
-    """The network (with its first pass and flow initialisation), loss and optimiser."""
+def build_state(cfg: TrainConfig, env: Distributed, steps_per_epoch: int,
+                warm: bool = True) -> TrainState:
+    """The network (with its first pass and flow initialisation), loss and optimiser.
+    ``warm``: apply ``run.init_from`` (not when the run resumes: its weights come from its
+    own checkpoint, and the warm start's source need not exist any more)."""
     run = cfg.run
     net = E2SRI(cfg.model)
-    if run.init_from:
+    if run.init_from and warm:
         warm_start(net, run.init_from)
     net = net.to(env.device)
     cuda = env.device.type == "cuda"
@@ -327,8 +330,9 @@ def train(config: TrainConfig, data: str | Path, out: str | Path, resume: bool =
     if cfg.run.threads:
         torch.set_num_threads(cfg.run.threads)
     shards = build_data(cfg, data, env)
-    state = build_state(cfg, env, shards.steps_per_epoch)
-    if resume and (out / "last.pt").is_file():
+    resuming = resume and (out / "last.pt").is_file()
+    state = build_state(cfg, env, shards.steps_per_epoch, warm=not resuming)
+    if resuming:
         resume_from(state, cfg, out / "last.pt")
     total = cfg.optim.epochs * shards.steps_per_epoch
     if cfg.run.max_steps is not None:

@@ -88,3 +88,22 @@ def test_training_starts_from_init_from(tmp_path):
     state = build_state(cfg, Distributed(), steps_per_epoch=10)
     new, ref = state.net.state_dict(), old.state_dict()
     assert all(torch.equal(new[k], ref[k]) for k in ref if not k.startswith("mix.1."))
+
+
+def test_a_warm_started_run_resumes_without_its_source(tiny_checkpoint, tiny_shards, tmp_path):
+    """The warm start applies once: resuming reads the run's own checkpoint, so the source
+    may be gone (a later session, a re-exported model)."""
+    import shutil
+
+    from model.training.train import train
+    from tests.model.conftest import tiny_config
+
+    source = tmp_path / "source.pt"
+    shutil.copy(tiny_checkpoint, source)
+    out = tmp_path / "run"
+    train(tiny_config("run.max_steps=2", f"run.init_from={source}"), tiny_shards, out,
+          show_progress=False)
+    source.unlink()
+    result = train(tiny_config("run.max_steps=4", f"run.init_from={source}"), tiny_shards,
+                   out, resume=True, show_progress=False)
+    assert checkpoint.load(out / "last.pt")["step"] == 4 and result is not None
