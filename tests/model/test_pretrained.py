@@ -42,19 +42,20 @@ def test_export_round_trip_and_checksum(tiny_checkpoint, tmp_path):
         shipped_checkpoint(4, tmp_path)
 
 
-def test_the_package_ships_an_x2_model_that_loads():
+@pytest.mark.parametrize("scale", [2, 4])
+def test_the_package_ships_a_model_per_scale_that_loads(scale):
     """The weights committed in the package: present, small, matching their manifest, and
     loadable by today's code (later refactors must keep it so)."""
     entries = manifest()
-    assert file_name(2) in entries, "no shipped x2 model in model/weights/"
-    path = shipped_checkpoint(2)
+    assert file_name(scale) in entries, f"no shipped x{scale} model in model/weights/"
+    path = shipped_checkpoint(scale)
     assert path.stat().st_size < 20e6
     net = checkpoint.load_model(path)
-    assert net.config.scale == 2
+    assert net.config.scale == scale
     with torch.no_grad():
         out = net(*inputs(net.config, b=1, h=32, w=32))
-    assert out.shape == (1, 1, 64, 64) and torch.isfinite(out).all()
-    assert json.loads((WEIGHTS / "manifest.json").read_text())[file_name(2)]["step"] > 0
+    assert out.shape == (1, 1, 32 * scale, 32 * scale) and torch.isfinite(out).all()
+    assert json.loads((WEIGHTS / "manifest.json").read_text())[file_name(scale)]["step"] > 0
 
 
 @pytest.fixture(scope="module")
@@ -92,3 +93,19 @@ def test_reconstruct_and_evaluate_default_to_the_shipped_model(default_sequence,
             if r[0] == "average"}
     ours, hf = float(rows[("hr", "ours")][4]), float(rows[("hr", "hf")][4])
     assert np.isfinite(ours) and ours > hf  # PSNR: the shipped model beats the filter
+
+
+def test_reconstruct_scale_4_picks_the_shipped_x4_model(default_sequence, tmp_path):
+    """``--scale 4`` without ``--checkpoint``: the x4 model, 512x512 frames of 128x128
+    events (the sequence's own HR camera is x2; reconstruction does not need it)."""
+    import cv2
+
+    from model.cli import reconstruct_main
+
+    shard = sorted(default_sequence.glob("shard_*.h5"))[0]
+    assert reconstruct_main([str(shard), "--scale", "4", "--out", str(tmp_path / "rec"),
+                             "--limit", "3", "--no-progress"]) == 0
+    frames = sorted((tmp_path / "rec").glob("frame_*.png"))
+    assert len(frames) == 3
+    img = cv2.imread(str(frames[-1]), cv2.IMREAD_GRAYSCALE)
+    assert img.shape == (512, 512) and img.std() > 5
