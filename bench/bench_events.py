@@ -5,7 +5,7 @@ Run: .venv/bin/python bench/bench_events.py [--frames N] [--repeats R]
 
 Frames are rendered first (homography, 128x128, photo texture, a default-speed trajectory)
 and kept in memory as 8-bit images, the input esim_py reads. Two densities: a ``sparse`` case
-(frames 0.8 ms apart, about 0.03 events per pixel per step) and a ``dense`` one (the same
+(frames 0.8 ms apart, about 0.02 events per pixel per step) and a ``dense`` one (the same
 texture moving fast: frames 7 ms apart, about 0.15). Timed, on one pinned core:
 
 - kernel: the bare per-pixel state update on float32 log images (numba, numpy, Python; the
@@ -113,7 +113,7 @@ class Row:
     case: str
     name: str
     kernel_ups: float | None  # pixel-updates/s of the bare kernel
-    full_ups: float | None  # pixel-updates/s frames -> sorted list
+    full_ups: float  # pixel-updates/s frames -> sorted list
     events: int
     density: float
 
