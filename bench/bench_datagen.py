@@ -1,9 +1,12 @@
 """Dataset generation throughput, scaling, storage and memory at the default config.
 
 Run: .venv/bin/python bench/bench_datagen.py [--quick]
-     .venv/bin/python bench/bench_datagen.py --compare-code DIR  (Mitsuba only: this
-     checkout against another one, e.g. a git worktree of an older commit, same runs
-     interleaved: before/after a change)
+     .venv/bin/python bench/bench_datagen.py --ratio [--n-seq N] [--repeats R]
+     .venv/bin/python bench/bench_datagen.py --ratio --compare-code DIR
+``--ratio``: the same N default sequences generated with each backend, runs interleaved
+(homography, Mitsuba, homography, ...; this VM drifts), per worker count: median seconds
+and Mitsuba / homography. With ``--compare-code DIR`` it also runs another checkout (e.g. a
+git worktree of an older commit) in the same rotation: before/after a change.
 Each case runs ``datagen generate`` as a child process into a fresh temporary folder and
 reports sequences/min, events/s (simulated events per wall second), the peak RSS of the
 largest process of the run (``getrusage(RUSAGE_CHILDREN)``: with workers, a worker or the
@@ -74,11 +77,17 @@ def run_case(n_seq: int, workers: int, sets: list[str], scale: str = "2",
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--quick", action="store_true", help="fewer sequences per case")
+    parser.add_argument("--ratio", action="store_true",
+                        help="Mitsuba / homography on the same sequences, interleaved")
+    parser.add_argument("--n-seq", type=int, default=8, help="sequences per --ratio run")
+    parser.add_argument("--repeats", type=int, default=3, help="runs per --ratio case")
+    parser.add_argument("--workers", default="1,2", help="worker counts for --ratio")
     parser.add_argument("--compare-code", type=Path, metavar="DIR",
-                        help="Mitsuba rows only, for this checkout and the one in DIR")
+                        help="with --ratio: also the checkout in DIR, same rotation")
     args = parser.parse_args(argv)
-    if args.compare_code:
-        return compare(args.compare_code, 2 if args.quick else 4)
+    if args.ratio or args.compare_code:
+        return ratio(args.n_seq, args.repeats, [int(w) for w in args.workers.split(",")],
+                     args.compare_code)
     n_h, n_m = (8, 2) if args.quick else (16, 4)
     homography = ["simulation.render.backend=homography"]
     mitsuba = ["simulation.render.backend=mitsuba", "sequences_per_shard=2"]
@@ -106,18 +115,35 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def compare(other: Path, n: int) -> int:
-    """Mitsuba sequences/min of this checkout and ``other``, runs interleaved."""
-    mitsuba = ["simulation.render.backend=mitsuba", "sequences_per_shard=2"]
-    here = Path(__file__).resolve().parents[1]
+def ratio(n: int, repeats: int, workers: list[int], other: Path | None) -> int:
+    """Both backends on the same ``n`` sequences, interleaved; medians and their ratio."""
+    import statistics
+
+    backends = {"homography": ["simulation.render.backend=homography"],
+                "mitsuba": ["simulation.render.backend=mitsuba"]}
+    codes = [("this checkout", None)] + ([(f"{other}", other)] if other else [])
     print(f"# {' '.join(['python'] + sys.argv)}")
-    print("| code | workers | sequences | seconds | sequences/min | events |")
-    print("|---|---|---|---|---|---|")
-    for workers in (1, 2):
-        for label, code in ((f"{other}", other), ("this checkout", here)):
-            r = run_case(n, workers, mitsuba, code=code)
-            print(f"| {label} | {workers} | {n} | {r['seconds']:.1f} | "
-                  f"{n / r['seconds'] * 60:.1f} | {r['events']:,} |", flush=True)
+    print("| code | workers | backend | sequences | seconds (median) | runs | sequences/min "
+          "| events | mitsuba / homography |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for w in workers:
+        times: dict[tuple[str, str], list[float]] = {}
+        events: dict[tuple[str, str], int] = {}
+        for _ in range(repeats):
+            for label, code in codes:
+                for backend, sets in backends.items():
+                    r = run_case(n, w, sets, code=code)
+                    times.setdefault((label, backend), []).append(r["seconds"])
+                    events[(label, backend)] = r["events"]
+        for label, _ in codes:
+            med = {b: statistics.median(times[(label, b)]) for b in backends}
+            for backend in backends:
+                runs = ", ".join(f"{t:.1f}" for t in times[(label, backend)])
+                tail = f"**{med['mitsuba'] / med['homography']:.2f}x**" \
+                    if backend == "mitsuba" else ""
+                print(f"| {label} | {w} | {backend} | {n} | {med[backend]:.1f} | {runs} | "
+                      f"{n / med[backend] * 60:.1f} | {events[(label, backend)]:,} | {tail} |",
+                      flush=True)
     return 0
 
 

@@ -1,21 +1,29 @@
 """Mitsuba 3 rendering of the planar scene; the only module that imports mitsuba/drjit.
 
-Noise-free by construction, because render noise would become fake events:
+On the JIT variants (LLVM, CUDA) a camera is rendered as one wavefront of primary rays
+(:class:`_RayCast`): a ray through the centre of every cell of the ``s x s`` sub-pixel grid
+of :mod:`esim_lite.render_homography`, intersected with the plane by Mitsuba's rectangle
+shape, turned into a surface interaction by it, and shaded by the plane's diffuse BSDF; a
+second kernel averages the ``s x s`` samples of every camera pixel. The plane is diffuse
+under a constant unit environment, so its radiance is its albedo in every direction:
+exactly what Mitsuba's ``direct`` integrator returns with one BSDF sample (the scalar path
+below), without the sampler, film, emitter query and scattered accumulation around it,
+which were ~3x the cost. Both kernels are recorded once with ``drjit.freeze`` and replayed
+for every pose. Noise-free and bit-exact by construction:
 - the texture is loaded raw (linear values, no sRGB decoding), bilinear, ``clamp`` wrap;
-- the film has ``s`` times the camera's resolution along each axis and one sample at the
-  centre of each of its pixels, so the samples are exactly the ``s x s`` sub-pixel grid of
-  :mod:`esim_lite.render_homography`; they are averaged into camera pixels here, in a fixed
-  order. (With ``s*s`` samples per film pixel instead, drjit's LLVM backend, which splits a
-  launch into blocks of 16,384 work items, sums the samples of pixels that straddle two
-  blocks in thread-timing order: renders differed by 1-2 ulp from run to run, enough to
-  move an event by nanoseconds. One sample per film pixel has nothing to sum.)
-- the ``direct`` integrator samples only the BSDF under a constant unit environment, so a
-  diffuse plane returns its albedo with zero variance;
-- a fixed seed, and the scene is built once; per frame only ``sensor.to_world`` changes
-  (``mi.traverse`` + ``params.update()``), so the JIT kernel compiles once.
+- each ray is one lane and each pixel's sum one lane of the second kernel (float64, a
+  fixed order); nothing is accumulated across lanes, so the LLVM backend's split of a
+  launch into blocks of 16,384 items (sums across lanes that straddle two blocks are added
+  in thread-timing order) cannot change a bit: renders are the same with any thread count.
 
-Conventions bridged here: Mitsuba's camera frame is X left / Y up / Z forward, its pixel
-centres sit at ``i + 0.5``, and a rectangle's bitmap row 0 lies at local ``y = -1``.
+Scalar variants (the fallback when drjit's LLVM is unusable) render the same scene with
+``mi.render``: an ``s``-times larger film with one centred sample per film pixel and the
+``direct`` integrator sampling only the BSDF; its samples are averaged in numpy, same order.
+
+Conventions bridged here: the ray cast uses our camera frame (OpenCV's: x right, y down,
+z forward; pixel centres at integers); Mitsuba's perspective sensor (scalar path) is X left,
+Y up, Z forward with pixel centres at ``i + 0.5``; a rectangle's bitmap row 0 lies at local
+``y = -1``.
 """
 
 from __future__ import annotations
@@ -24,6 +32,7 @@ import logging
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -40,29 +49,28 @@ _OPENCV_TO_MITSUBA = np.diag([-1.0, -1.0, 1.0, 1.0])
 _variant_cache: dict[str, str] = {}
 
 _PROBE = """
-import numpy as np, mitsuba as mi
-mi.set_variant({variant!r})
-tex = mi.Bitmap(np.linspace(0, 1, 16, dtype=np.float32).reshape(4, 4, 1))
-scene = mi.load_dict({{'type': 'scene',
-  'integrator': {{'type': 'direct', 'emitter_samples': 0, 'bsdf_samples': 1}},
-  'sensor': {{'type': 'perspective', 'fov': 40,
-             'to_world': mi.ScalarTransform4f().translate([0, 0, -3]),
-             'film': {{'type': 'hdrfilm', 'width': 8, 'height': 8,
-                      'rfilter': {{'type': 'box'}}, 'pixel_format': 'luminance'}},
-             'sampler': {{'type': 'stratified', 'sample_count': 4, 'jitter': False}}}},
-  'env': {{'type': 'constant'}},
-  'plane': {{'type': 'rectangle', 'flip_normals': True, 'bsdf': {{'type': 'diffuse',
-            'reflectance': {{'type': 'bitmap', 'bitmap': tex, 'raw': True,
-                            'wrap_mode': 'clamp'}}}}}}}})
-img = np.array(mi.render(scene, seed=0))
+import sys
+sys.path.insert(0, {root!r})
+import numpy as np
+from esim_lite.camera import Intrinsics
+from esim_lite.pose import Pose
+from esim_lite.render_mitsuba import MitsubaRenderer
+from esim_lite.scene import PlanarScene
+tex = np.linspace(0, 1, 16, dtype=np.float32).reshape(4, 4)
+cam = Intrinsics(8.0, 8.0, 3.5, 3.5, 8, 8)
+renderer = MitsubaRenderer({{"lr": PlanarScene(tex, 2.0, 2.0)}}, {{"lr": cam}}, {{"lr": 2}},
+                           variant={variant!r})
+img = renderer.render("lr", Pose(np.diag([1.0, -1.0, -1.0]), np.array([0.0, 0.0, 1.0])))
 assert np.isfinite(img).all() and img.max() > 0
 """
 
 
 def _probe(variant: str) -> bool:
-    """Render a tiny scene with ``variant`` in a child process (an LLVM abort kills only it)."""
+    """Render a tiny scene with ``variant`` in a child process (an LLVM abort kills only it),
+    through this module's own render path."""
+    root = str(Path(__file__).resolve().parents[1])
     try:
-        proc = subprocess.run([sys.executable, "-c", _PROBE.format(variant=variant)],
+        proc = subprocess.run([sys.executable, "-c", _PROBE.format(variant=variant, root=root)],
                               capture_output=True, text=True, timeout=300)
     except subprocess.TimeoutExpired:
         return False
@@ -126,30 +134,22 @@ class MitsubaRenderer:
         self.cameras = dict(cameras)
         self.supersample = {name: int(supersample.get(name, 1)) for name in self.cameras}
         self._mono = "mono" in self.variant
-        self._scenes, self._params, self._render = {}, {}, {}
+        self._jit = not self.variant.startswith("scalar")
+        self._scenes, self._params, self._cast = {}, {}, {}
         for name, cam in self.cameras.items():
-            scene = mi.load_dict({
-                "type": "scene",
-                "integrator": {"type": "direct", "emitter_samples": 0, "bsdf_samples": 1},
-                "env": {"type": "constant", "radiance": 1.0},
-                "plane": self._plane(scenes[name]),
-                "sensor": self._sensor(cam, self.supersample[name]),
-            })
+            s = self.supersample[name]
+            parts = {"type": "scene", "plane": self._plane(scenes[name])}
+            if not self._jit:
+                parts.update({
+                    "integrator": {"type": "direct", "emitter_samples": 0, "bsdf_samples": 1},
+                    "env": {"type": "constant", "radiance": 1.0},
+                    "sensor": self._sensor(cam, s)})
+            scene = mi.load_dict(parts)
             self._scenes[name] = scene
-            self._params[name] = mi.traverse(scene)
-            self._render[name] = self._renderer_for(scene)
-
-    def _renderer_for(self, scene):
-        """A render call for ``scene``; on JIT variants a frozen function, which records the
-        kernel launches once and replays them (the new camera transform is an opaque
-        variable, so replays see it), saving ~2 ms of Python tracing per frame."""
-        mi = self._mi
-        if self.variant.startswith("scalar"):
-            return lambda: mi.render(scene, seed=0)
-        import drjit as dr
-
-        frozen = dr.freeze(lambda s: mi.render(s, seed=0))
-        return lambda: frozen(scene)
+            if self._jit:
+                self._cast[name] = _RayCast(cam, s)
+            else:
+                self._params[name] = mi.traverse(scene)
 
     def _plane(self, scene: PlanarScene) -> dict:
         mi = self._mi
@@ -176,24 +176,30 @@ class MitsubaRenderer:
             "principal_point_offset_y": -(cam.cy + 0.5 - cam.height / 2) / cam.height,
             "near_clip": 1e-3, "far_clip": 1e4,
             "to_world": mi.ScalarTransform4f(np.eye(4).tolist()),
-            # s x s film pixels per camera pixel, one centred sample each (see the module
-            # doc); the principal point offset is a fraction of the film, so it is unchanged
+            # s x s film pixels per camera pixel, one centred sample each: nothing is summed
+            # inside Mitsuba; the principal point offset is a fraction of the film
             "film": {"type": "hdrfilm", "width": cam.width * supersample,
                      "height": cam.height * supersample, "rfilter": {"type": "box"},
                      "pixel_format": "luminance", "sample_border": False},
             "sampler": {"type": "stratified", "sample_count": 1, "jitter": False, "seed": 0},
         }
 
+    def _render_film(self, camera: str, pose: Pose) -> np.ndarray:
+        mi = self._mi
+        params = self._params[camera]
+        params["sensor.to_world"] = mi.ScalarTransform4f(
+            (pose.matrix() @ _OPENCV_TO_MITSUBA).tolist())
+        params.update()
+        return np.array(mi.render(self._scenes[camera], seed=0), dtype=np.float32)[..., 0]
+
     def render(self, camera: str, pose: Pose) -> np.ndarray:
         """float32[H, W] linear intensity seen by ``camera`` at ``pose``."""
         mi = self._mi
         if mi.variant() != self.variant:  # the variant is process-global; another renderer
             mi.set_variant(self.variant)  # in this process may have switched it
-        params = self._params[camera]
-        params["sensor.to_world"] = mi.ScalarTransform4f(
-            (pose.matrix() @ _OPENCV_TO_MITSUBA).tolist())
-        params.update()
-        fine = np.array(self._render[camera](), dtype=np.float32)[..., 0]
+        if self._jit:
+            return self._cast[camera](self._scenes[camera], pose)
+        fine = self._render_film(camera, pose)
         s = self.supersample[camera]
         if s == 1:
             return fine
@@ -204,6 +210,69 @@ class MitsubaRenderer:
         return (total / (s * s)).astype(np.float32)
 
     def close(self) -> None:
-        self._render.clear()
+        self._cast.clear()
         self._params.clear()
         self._scenes.clear()
+
+
+class _RayCast:
+    """Renders ``camera`` with ``s x s`` primary rays per pixel, one through the centre of
+    every cell of its sub-pixel grid (OpenCV conventions), traced through a Mitsuba scene.
+
+    Two kernels, recorded once as a frozen function of the scene and the pose (12 opaque
+    floats: ``R_wc`` row by row, then ``t_wc``) and replayed for every pose: the rays (one lane
+    each, over the ``s``-times finer grid, so both cores share the work), then per camera
+    pixel the sum of its ``s x s`` values in float64 in one fixed order (row by row), as
+    the scalar path does in numpy. Rays that miss the scene give 0.
+    """
+
+    def __init__(self, camera: Intrinsics, supersample: int) -> None:
+        import drjit as dr
+
+        self.camera = camera
+        self.supersample = supersample
+        self._frozen = dr.freeze(self._trace)
+
+    def _trace(self, scene, pose):
+        import drjit as dr
+        import mitsuba as mi
+
+        s, cam = self.supersample, self.camera
+        fine = cam.scaled(s)
+        index = dr.arange(mi.UInt32, fine.width * fine.height)
+        row = index // fine.width
+        x = (mi.Float(index - row * fine.width) - fine.cx) / fine.fx
+        y = (mi.Float(row) - fine.cy) / fine.fy
+        m = pose  # 12 one-element arrays, read once per lane (a gather per lane was slower)
+        direction = mi.Vector3f(m[0] * x + m[1] * y + m[2], m[3] * x + m[4] * y + m[5],
+                                m[6] * x + m[7] * y + m[8])
+        ray = mi.Ray3f(mi.Point3f(m[9], m[10], m[11]), dr.normalize(direction))
+        # the scene's only shape is the plane: its own intersection routine, rather than
+        # Scene.ray_intersect_preliminary's walk of an Embree hierarchy of one primitive
+        # (hits equal to float32 rounding; that kernel took 1.8x as long here)
+        (plane,) = scene.shapes()
+        hit = plane.ray_intersect_preliminary(ray)
+        si = hit.compute_surface_interaction(ray, mi.RayFlags.UV)
+        radiance = plane.bsdf().eval_diffuse_reflectance(si, si.is_valid())
+        samples = dr.select(si.is_valid(), radiance[0], 0.0)
+        if s == 1:
+            return samples
+        dr.eval(samples)  # the sum below reads neighbouring lanes: a second kernel
+        pixel = dr.arange(mi.UInt32, cam.width * cam.height)
+        prow = pixel // cam.width
+        first = prow * (s * fine.width) + (pixel - prow * cam.width) * s
+        total = mi.Float64(0.0)
+        for i in range(s):
+            for j in range(s):
+                total += mi.Float64(dr.gather(mi.Float, samples, first + i * fine.width + j))
+        return mi.Float(total / (s * s))
+
+    def __call__(self, scene, pose: Pose) -> np.ndarray:
+        """float32[H, W] radiance of ``scene`` seen from ``pose``."""
+        import drjit as dr
+        import mitsuba as mi
+
+        packed = np.concatenate([pose.r_wc.reshape(-1), pose.t_wc]).astype(np.float32)
+        values = self._frozen(scene, [dr.opaque(mi.Float, float(v)) for v in packed])
+        return np.array(values, dtype=np.float32).reshape(self.camera.height,
+                                                          self.camera.width)
