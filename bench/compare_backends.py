@@ -34,14 +34,13 @@ def run(config: DatagenConfig, backend: str, seed: int, index: int):
     spec = sample_sequence(sim, TextureSampler(config.textures), seed, index)
     start = time.perf_counter()
     seq = simulate_sequence(spec.scene, spec.trajectory, spec.thresholds, sim, spec.noise_rng)
-    return seq, time.perf_counter() - start, spec.texture_name
+    return seq, time.perf_counter() - start, spec
 
 
-def render_gap(config: DatagenConfig, seed: int, index: int, n_poses: int = 20) -> dict:
+def render_gap(config: DatagenConfig, spec, n_poses: int = 20) -> dict:
     """Per camera, the largest |log(I + eps) difference| between the backends' renders of
-    the same ``n_poses`` poses of sequence ``index``."""
+    the same ``n_poses`` poses of the sampled sequence ``spec``."""
     sim = config.simulation
-    spec = sample_sequence(sim, TextureSampler(config.textures), seed, index)
     rig = sim.camera.rig()
     poses = [spec.trajectory.pose(t) for t in np.linspace(0, sim.duration_s, n_poses)]
     logs = {}
@@ -89,9 +88,10 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|---|---|---|---|---|---|---|---|---|---|")
     totals = np.zeros(5)
     for i in range(args.n_seq):
-        a, ta, name = run(config, "homography", args.seed, i)
+        a, ta, spec = run(config, "homography", args.seed, i)
         b, tb, _ = run(config, "mitsuba", args.seed, i)
-        gap = render_gap(config, args.seed, i)
+        gap = render_gap(config, spec)
+        name = spec.texture_name
         diff = (len(b.events) - len(a.events)) / len(a.events)
         lost = unmatched(a.events, b.events)
         totals += [len(a.events), len(b.events), lost, ta, tb]
