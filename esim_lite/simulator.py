@@ -13,7 +13,7 @@ from esim_lite.event_reference import numpy_step, python_step
 from esim_lite.noise import NoiseConfig, NoiseModel
 from esim_lite.thresholds import ContrastThresholds, ThresholdConfig
 
-KernelName = Literal["numba", "numpy", "python"]
+KernelName = Literal["numba", "numpy", "python", "torch"]
 
 
 @dataclass(frozen=True)
@@ -56,6 +56,12 @@ class _NumbaKernel:
         return events
 
 
+def _torch_kernel():
+    from esim_lite.event_torch import TorchKernel  # torch only when this kernel is chosen
+
+    return TorchKernel()
+
+
 def log_intensity(intensity: np.ndarray, log_eps: float) -> np.ndarray:
     """float32 ``log(log_eps + I)`` of a linear intensity image (one new array)."""
     out = np.add(intensity, np.float32(log_eps), dtype=np.float32)
@@ -71,7 +77,9 @@ class EventSimulator:
         thresholds: the sensor's (possibly mismatched) contrast thresholds.
         log_eps, refractory_ns: see :class:`EventConfig`.
         noise: a :class:`NoiseModel`, or None for a noise-free sensor.
-        kernel: ``numba`` (fast), or the ``numpy``/``python`` reference implementations.
+        kernel: ``numba`` (fast), the ``numpy``/``python`` reference implementations, or
+            ``torch`` (:mod:`esim_lite.event_torch`, on CUDA when torch sees a GPU, else on
+            the CPU; imported only when asked for).
     """
 
     def __init__(self, first_intensity: np.ndarray, t0_ns: int, thresholds: ContrastThresholds,
@@ -86,7 +94,7 @@ class EventSimulator:
         self.refractory_ns = int(refractory_ns)
         self.noise = noise
         self._kernel = {"numba": _NumbaKernel, "numpy": lambda: numpy_step,
-                        "python": lambda: python_step}[kernel]()
+                        "python": lambda: python_step, "torch": _torch_kernel}[kernel]()
         self._kernel_in_order = bool(getattr(self._kernel, "in_time_order", False))
         self._c_pos = np.ascontiguousarray(thresholds.pos_map, np.float64)
         self._c_neg = np.ascontiguousarray(thresholds.neg_map, np.float64)
