@@ -32,6 +32,14 @@ import triton
 import triton.language as tl
 
 BLOCK = 128
+#: Compile options of the CUDA kernel: no multiply-add contraction (two roundings stay two).
+COMPILE_OPTIONS = {"enable_fp_fusion": False}
+#: Its argument types, for compiling it ahead of time (tests inspect the PTX).
+SIGNATURE = {"logs_ptr": "*fp32", "times_ptr": "*i64", "tol_ptr": "*fp64", "ref_ptr": "*fp64",
+             "last_ptr": "*i64", "cpos_ptr": "*fp64", "cneg_ptr": "*fp64",
+             "counts_ptr": "*i32", "offsets_ptr": "*i64", "x_ptr": "*i16", "y_ptr": "*i16",
+             "t_ptr": "*i64", "p_ptr": "*i8", "n_px": "i32", "width": "i32", "n_steps": "i32",
+             "refractory_ns": "i32", "WRITE": "constexpr", "BLOCK": "constexpr"}
 
 
 def _sweep(logs_ptr, times_ptr, tol_ptr, ref_ptr, last_ptr, cpos_ptr, cneg_ptr, counts_ptr,
@@ -132,7 +140,7 @@ def sweep(logs: torch.Tensor, times: torch.Tensor, ref: torch.Tensor, last_t: to
     counts = torch.zeros((n_steps - 1, n_px), dtype=torch.int32, device=dev)
     offsets = torch.zeros((n_steps - 1, n_px), dtype=torch.int64, device=dev)
     grid = (triton.cdiv(n_px, BLOCK),)
-    extra = {} if dev.type == "cpu" else {"enable_fp_fusion": False}
+    extra = {} if dev.type == "cpu" else COMPILE_OPTIONS
     dummy = [torch.empty(1, dtype=dt, device=dev)
              for dt in (torch.int16, torch.int16, torch.int64, torch.int8)]
     kern[grid](logs, times, tol_t, ref, last_t, c_pos, c_neg, counts, offsets, *dummy, n_px,

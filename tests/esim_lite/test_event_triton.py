@@ -68,6 +68,32 @@ def test_compiled_kernel_gives_the_simulators_events_bit_for_bit():
     assert len(compare("cuda")) == 4
 
 
+@pytest.mark.parametrize("write", [False, True])
+def test_cuda_build_keeps_every_float64_rounding(write):
+    """Compiled ahead of time for an sm_90 GPU (Triton bundles ptxas; no GPU needed): with
+    the kernel's options the PTX has IEEE float64 division and no fused multiply-add (the
+    compiled kernel's separate roundings); with fusion on (Triton 3.9's default) it would
+    fuse four."""
+    import triton
+    from triton.backends.compiler import GPUTarget
+    from triton.compiler import ASTSource
+
+    from esim_lite.event_triton import BLOCK, COMPILE_OPTIONS, SIGNATURE, _sweep, interpreting
+
+    if interpreting():
+        pytest.skip("this process interprets Triton")
+
+    def ptx(options):
+        src = ASTSource(fn=triton.jit(_sweep), signature=SIGNATURE,
+                        constexprs={"WRITE": write, "BLOCK": BLOCK})
+        return triton.compile(src, target=GPUTarget("cuda", 90, 32), options=options).asm["ptx"]
+
+    ours = ptx(COMPILE_OPTIONS)
+    assert "fma.rn.f64" not in ours and ".approx" not in ours
+    assert ours.count("div.rn.f64") == 2 and "mul.rn.f64" in ours
+    assert ptx({"enable_fp_fusion": True}).count("fma.rn.f64") > 0  # what the option prevents
+
+
 def test_cpu_tensors_outside_the_interpreter_are_refused():
     from esim_lite.event_triton import interpreting, sweep
 
