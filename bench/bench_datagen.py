@@ -92,6 +92,7 @@ def main(argv: list[str] | None = None) -> int:
     homography = ["simulation.render.backend=homography"]
     mitsuba = ["simulation.render.backend=mitsuba", "sequences_per_shard=2"]
     print(f"# {' '.join(['python'] + sys.argv)}")
+    print(f"# {machine()}")
     print("| backend | workers | sequences | seconds | sequences/min | events/s | frames "
           "| peak RSS MB |")
     print("|---|---|---|---|---|---|---|---|")
@@ -115,6 +116,14 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def machine() -> str:
+    """The CPU count and the Mitsuba variant the mitsuba rows run on (CUDA where drjit
+    sees a GPU), for the table's header."""
+    from esim_lite.render_mitsuba import resolve_variant
+
+    return f"{os.cpu_count()} CPUs; mitsuba variant {resolve_variant()}"
+
+
 def ratio(n: int, repeats: int, workers: list[int], other: Path | None) -> int:
     """Both backends on the same ``n`` sequences, interleaved; medians and their ratio."""
     import statistics
@@ -123,6 +132,7 @@ def ratio(n: int, repeats: int, workers: list[int], other: Path | None) -> int:
                 "mitsuba": ["simulation.render.backend=mitsuba"]}
     codes = [("this checkout", None)] + ([(f"{other}", other)] if other else [])
     print(f"# {' '.join(['python'] + sys.argv)}")
+    print(f"# {machine()}")
     print("| code | workers | backend | sequences | seconds (median) | runs | sequences/min "
           "| events | mitsuba / homography |")
     print("|---|---|---|---|---|---|---|---|---|")

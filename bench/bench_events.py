@@ -2,6 +2,8 @@
 
 Run: .venv/bin/python bench/bench_events.py [--frames N] [--repeats R]
          [--esim-py bench/esim_py/build]   (after: bash bench/esim_py/build.sh PATH/TO/rpg_vid2e)
+         [--torch cpu cuda]                (the torch kernel on these devices; default: cpu,
+                                            and cuda when torch sees a GPU)
 
 Frames are rendered first (homography, 128x128, photo texture, a default-speed trajectory)
 and kept in memory as 8-bit images, the input esim_py reads. Two densities: a ``sparse`` case
@@ -13,7 +15,11 @@ texture moving fast: frames 7 ms apart, about 0.15). Timed, on one pinned core:
 - full: from 8-bit frames in memory to one time-sorted event list: ``EventSimulator.step``
   per frame (u8 -> linear -> log, kernel, time order, Events record) and the final
   ``Events.concatenate``; for esim_py, its own per-frame conversion (convertTo, cv::log),
-  ``imageCallback`` (crossings, per-frame std::sort) and the (N, 4) result matrix.
+  ``imageCallback`` (crossings, per-frame std::sort) and the (N, 4) result matrix; for the
+  torch kernel (``esim_lite.event_torch``), the 8-bit frames as one tensor moved to the
+  device, u8 -> linear -> log there, ``TorchEventCamera.simulate`` (state on the device;
+  backend ``torch``: one vectorised step per frame; ``triton``, on CUDA: the whole stack in
+  two launches) and the events back on the host as an ``Events`` record.
 
 Like for like: the same frames, ``log(u8 / 255 + 1e-3)``, Cp = Cn = 0.2, no refractory
 period, no noise. Every implementation is timed in turn within each repeat (medians), so a
@@ -89,6 +95,57 @@ def simulate(kind: str, frames: np.ndarray, step_ns: int) -> Events:
     return Events.concatenate(parts, frames.shape[1:])
 
 
+def torch_kernel_run(logs, device, backend: str) -> int:
+    """All steps of the bare torch (per step) or Triton (per stack) kernel on log images
+    already on ``device``; returns the number of events."""
+    import torch
+
+    from esim_lite.event_torch import torch_step
+
+    h, w = logs.shape[1:]
+    c = torch.full((h, w), THRESHOLD, dtype=torch.float64, device=device)
+    ref = logs[0].to(torch.float64)
+    last = torch.full((h, w), NEVER, dtype=torch.int64, device=device)
+    if backend == "triton":
+        from esim_lite.event_triton import sweep
+
+        times = torch.arange(len(logs), dtype=torch.int64, device=device) * 1000
+        n_events = sweep(logs, times, ref, last, c, c, 0, TIE_TOL)[0].numel()
+    else:
+        n_events = 0
+        for k in range(1, len(logs)):
+            n_events += torch_step(logs[k - 1], logs[k], ref, last, c, c, (k - 1) * 1000,
+                                   k * 1000, 0, TIE_TOL)[0].numel()
+    if device.type == "cuda":
+        torch.cuda.synchronize()
+    return n_events
+
+
+def torch_simulate(frames: np.ndarray, step_ns: int, device, backend: str) -> Events:
+    """Frames in memory -> one time-sorted event list, with the torch camera on ``device``."""
+    import torch
+
+    from esim_lite.event_torch import TorchEventCamera
+
+    th = ContrastThresholds.uniform(THRESHOLD, THRESHOLD, frames.shape[1:])
+    u8 = torch.from_numpy(frames).to(device)
+    logs = torch.log(u8.to(torch.float32) * np.float32(1 / 255) + np.float32(LOG_EPS))
+    cam = TorchEventCamera(th, device=device, backend=backend)
+    return cam.simulate(logs, [k * step_ns for k in range(len(frames))])
+
+
+def torch_variants(devices: list[str]) -> list[tuple[str, str]]:
+    """(device, backend) pairs to time: per-step torch everywhere, Triton on CUDA."""
+    import importlib.util
+
+    out = []
+    for dev in devices:
+        out.append((dev, "torch"))
+        if dev.startswith("cuda") and importlib.util.find_spec("triton") is not None:
+            out.append((dev, "triton"))
+    return out
+
+
 def esim_py_events(module, frames: np.ndarray, step_ns: int) -> np.ndarray:
     sim = module.EventSimulator(THRESHOLD, THRESHOLD, 0.0, LOG_EPS, True)
     return module.generate_from_frames(sim, frames, [k * step_ns * 1e-9
@@ -118,7 +175,8 @@ class Row:
     density: float
 
 
-def run_case(case: str, step_ms: float, n_frames: int, repeats: int, esim_py) -> list[Row]:
+def run_case(case: str, step_ms: float, n_frames: int, repeats: int, esim_py,
+             torch_devices: list[str]) -> list[Row]:
     frames = make_frames(n_frames, step_ms * 1e-3)
     logs = log_intensity(linear(frames), LOG_EPS)
     step_ns = int(round(step_ms * 1e6))
@@ -129,6 +187,16 @@ def run_case(case: str, step_ms: float, n_frames: int, repeats: int, esim_py) ->
     for name, (kernel, kind, n) in impls.items():
         jobs[name + "/kernel"] = lambda kernel=kernel, n=n: kernel_run(kernel, logs[:n])
         jobs[name + "/full"] = lambda kind=kind, n=n: simulate(kind, frames[:n], step_ns)
+    torch_names = []
+    for dev, backend in torch_variants(torch_devices):
+        import torch
+
+        device = torch.device(dev)
+        name = f"{backend} ({dev})"
+        torch_names.append(name)
+        dev_logs = torch.from_numpy(logs).to(device)
+        jobs[name + "/kernel"] = lambda d=device, g=dev_logs, b=backend: torch_kernel_run(g, d, b)
+        jobs[name + "/full"] = lambda d=device, b=backend: torch_simulate(frames, step_ns, d, b)
     if esim_py is not None:
         jobs["esim_py (C++, from memory)/full"] = lambda: esim_py_events(esim_py, frames,
                                                                           step_ns)
@@ -139,7 +207,7 @@ def run_case(case: str, step_ms: float, n_frames: int, repeats: int, esim_py) ->
         "python per-pixel loop/full": lambda: simulate("python", frames[:python_n], step_ns)},
         1))
     rows = []
-    for name in [*impls, "python per-pixel loop", "esim_py (C++, from memory)"]:
+    for name in [*impls, *torch_names, "python per-pixel loop", "esim_py (C++, from memory)"]:
         if name + "/full" not in timed:
             continue
         n = python_n if name.startswith("python") else len(frames)
@@ -159,6 +227,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
     parser.add_argument("--esim-py", metavar="DIR",
                         help="folder holding the esim_py_memory module (bench/esim_py/build.sh)")
+    parser.add_argument("--torch", nargs="*", metavar="DEVICE", default=None,
+                        help="torch devices to time (default: cpu, and cuda when present; "
+                             "none: --torch with no device)")
     parser.add_argument("--core", type=int, default=None,
                         help="CPU core to pin to (default: the last one available)")
     args = parser.parse_args(argv)
@@ -169,14 +240,28 @@ def main(argv: list[str] | None = None) -> int:
     if args.esim_py:
         sys.path.insert(0, args.esim_py)
         import esim_py_memory as esim_py
+    torch_devices = args.torch
+    if torch_devices is None:
+        import torch
+
+        torch_devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    if torch_devices:
+        import torch
+
+        torch.set_num_threads(1)  # the CPU side on the pinned core too
     warm = make_frames(3, 1e-3)  # compile
     simulate("numba", warm, 1000), kernel_run(_NumbaKernel(), log_intensity(linear(warm),
                                                                             LOG_EPS))
+    for dev, backend in torch_variants(torch_devices):  # CUDA context, Triton compile
+        torch_simulate(warm, 1000, torch.device(dev), backend)
     rows = [r for case in args.cases
-            for r in run_case(case, CASES[case], args.frames, args.repeats, esim_py)]
+            for r in run_case(case, CASES[case], args.frames, args.repeats, esim_py,
+                              torch_devices)]
     print(f"# {' '.join(['python'] + sys.argv)}")
     print(f"# 128x128, {args.frames} steps, C = {THRESHOLD}, 8-bit frames in memory, "
-          f"one core (cpu {core})")
+          f"one core (cpu {core})"
+          + (f"; torch {torch.__version__}" if torch_devices else "")
+          + (f", GPU {torch.cuda.get_device_name()}" if "cuda" in torch_devices else ""))
     print("| case | implementation | events/px/step | events | kernel Mpx-updates/s |"
           " full Mpx-updates/s | full vs esim_py |")
     print("|---|---|---|---|---|---|---|")
