@@ -188,9 +188,9 @@ def run_case(case: str, step_ms: float, n_frames: int, repeats: int, esim_py,
         jobs[name + "/kernel"] = lambda kernel=kernel, n=n: kernel_run(kernel, logs[:n])
         jobs[name + "/full"] = lambda kind=kind, n=n: simulate(kind, frames[:n], step_ns)
     torch_names = []
-    for dev, backend in torch_variants(torch_devices):
+    if torch_devices:
         import torch
-
+    for dev, backend in torch_variants(torch_devices):
         device = torch.device(dev)
         name = f"{backend} ({dev})"
         torch_names.append(name)

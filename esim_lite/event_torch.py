@@ -37,11 +37,18 @@ from esim_lite.core.events import Events
 from esim_lite.event_kernel import NEVER, TIE_TOL
 from esim_lite.thresholds import ContrastThresholds
 
-_EMPTY_DTYPES = (torch.int16, torch.int16, torch.int64, torch.int8)
+#: dtypes of an event list (x, y, t, p), as in :class:`esim_lite.core.events.Events`.
+EVENT_DTYPES = (torch.int16, torch.int16, torch.int64, torch.int8)
 #: Samples x pixels per Triton launch: bounds its (T - 1, P) count and offset buffers.
 _TRITON_CELLS = 2**26
 
 Backend = Literal["auto", "torch", "triton"]
+
+
+def event_buffers(n: int, device: torch.device
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Uninitialised (x, y, t, p) tensors of length ``n`` (``n = 0``: no events)."""
+    return tuple(torch.empty(n, dtype=dt, device=device) for dt in EVENT_DTYPES)
 
 
 def default_device() -> torch.device:
@@ -86,7 +93,7 @@ def torch_step(l0: torch.Tensor, l1: torch.Tensor, ref: torch.Tensor, last_t: to
     down = d <= tol - c_neg.reshape(-1)
     idx = torch.nonzero(up | down).squeeze(1)  # active pixels, row-major
     if idx.numel() == 0:
-        return tuple(torch.empty(0, dtype=dt, device=dev) for dt in _EMPTY_DTYPES)
+        return event_buffers(0, dev)
     up_a = up[idx]
     pol = torch.where(up_a, 1.0, -1.0).to(torch.float64)
     c = torch.where(up_a, c_pos.reshape(-1)[idx], -c_neg.reshape(-1)[idx])
@@ -102,7 +109,7 @@ def torch_step(l0: torch.Tensor, l1: torch.Tensor, ref: torch.Tensor, last_t: to
     total = int(ends[-1])
     last_a = last_flat[idx]
     if total == 0:
-        return tuple(torch.empty(0, dtype=dt, device=dev) for dt in _EMPTY_DTYPES)
+        return event_buffers(0, dev)
     owner = torch.repeat_interleave(torch.arange(idx.numel(), device=dev), counts,
                                     output_size=total)
     level = (torch.arange(total, device=dev) - starts[owner] + 1).to(torch.float64)
@@ -218,7 +225,7 @@ class TorchEventCamera:
                                         self.refractory_ns, TIE_TOL))
                 self.log_prev, self.t_ns = logs[k], times[k]
         if not parts:
-            return tuple(torch.empty(0, dtype=dt, device=self.device) for dt in _EMPTY_DTYPES)
+            return event_buffers(0, self.device)
         return tuple(torch.cat([p[i] for p in parts]) for i in range(4))
 
     def simulate(self, log_images: torch.Tensor | np.ndarray, t_ns: Sequence[int]) -> Events:

@@ -31,6 +31,8 @@ import torch
 import triton
 import triton.language as tl
 
+from esim_lite.event_torch import event_buffers
+
 BLOCK = 128
 #: Compile options of the CUDA kernel: no multiply-add contraction (two roundings stay two).
 COMPILE_OPTIONS = {"enable_fp_fusion": False}
@@ -56,10 +58,11 @@ def _sweep(logs_ptr, times_ptr, tol_ptr, ref_ptr, last_ptr, cpos_ptr, cneg_ptr, 
     old = tl.load(logs_ptr + pix, mask=m, other=0.0).to(tl.float64)
     t_prev = tl.load(times_ptr)
     zero = tl.zeros([BLOCK], tl.int64)
+    pix64 = pix.to(tl.int64)
     for s in range(1, n_steps):
         t_cur = tl.load(times_ptr + s)
-        row = (s - 1) * n_px + pix.to(tl.int64)
-        new = tl.load(logs_ptr + s * n_px + pix.to(tl.int64), mask=m, other=0.0).to(tl.float64)
+        row = (s - 1) * n_px + pix64
+        new = tl.load(logs_ptr + s * n_px + pix64, mask=m, other=0.0).to(tl.float64)
         d = new - ref
         up = d >= cp - tol
         down = d <= tol - cn
@@ -137,25 +140,21 @@ def sweep(logs: torch.Tensor, times: torch.Tensor, ref: torch.Tensor, last_t: to
                          "interpreter: set TRITON_INTERPRET=1 before triton is imported")
     kern = _kernel()
     tol_t = torch.tensor([tol], dtype=torch.float64, device=dev)
-    counts = torch.zeros((n_steps - 1, n_px), dtype=torch.int32, device=dev)
-    offsets = torch.zeros((n_steps - 1, n_px), dtype=torch.int64, device=dev)
+    counts = torch.empty((n_steps - 1, n_px), dtype=torch.int32, device=dev)  # pass 1 fills it
     grid = (triton.cdiv(n_px, BLOCK),)
     extra = {} if dev.type == "cpu" else COMPILE_OPTIONS
-    dummy = [torch.empty(1, dtype=dt, device=dev)
-             for dt in (torch.int16, torch.int16, torch.int64, torch.int8)]
-    kern[grid](logs, times, tol_t, ref, last_t, c_pos, c_neg, counts, offsets, *dummy, n_px,
-               w, n_steps, int(refractory_ns), False, BLOCK, **extra)
+    unused = event_buffers(1, dev)  # pass 1 writes no events and reads no offsets
+    no_offsets = torch.empty(1, dtype=torch.int64, device=dev)
+    kern[grid](logs, times, tol_t, ref, last_t, c_pos, c_neg, counts, no_offsets, *unused,
+               n_px, w, n_steps, int(refractory_ns), False, BLOCK, **extra)
     flat = counts.reshape(-1).to(torch.int64)
     ends = torch.cumsum(flat, 0)
     total = int(ends[-1]) if flat.numel() else 0
     offsets = (ends - flat).reshape(n_steps - 1, n_px)
-    out = [torch.empty(total, dtype=dt, device=dev)
-           for dt in (torch.int16, torch.int16, torch.int64, torch.int8)]
-    if total == 0:
-        out = dummy
+    out = event_buffers(total, dev) if total else unused  # pass 2 also writes the state
     kern[grid](logs, times, tol_t, ref, last_t, c_pos, c_neg, counts, offsets, *out, n_px, w,
                n_steps, int(refractory_ns), True, BLOCK, **extra)
     if total == 0:
-        return tuple(v[:0] for v in out)
+        return event_buffers(0, dev)
     order = torch.sort(out[2], stable=True).indices
     return tuple(v[order] for v in out)
