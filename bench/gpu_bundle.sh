@@ -8,9 +8,9 @@
 # Mitsuba's wheel holds 13 variants (63 MB). Only those e2sr uses are kept (cuda_ad_mono,
 # llvm_ad_mono, scalar_rgb; mi.variants() still lists all 13, being compiled in, and setting
 # a removed one fails with an ImportError); the spectral upsampling table (srgb.coeff, read
-# by spectral variants only), the sky model's data, large plugins no e2sr scene loads (volumetric and
-# particle integrators, curves, SDFs, ellipsoids, the principled BSDF), C++ headers and type
-# stubs go too: 45 -> 38 MB for cp311. Install on the target with
+# by spectral variants only), the sky model's data, large plugins no e2sr scene loads
+# (volumetric and particle integrators, curves, SDFs, ellipsoids, the principled BSDF), C++
+# headers and type stubs go too: 45 -> 38 MB for cp311. Install on the target with
 #   mkdir -p /tmp/site && tar xzf gpu_bundle.tgz -C /tmp/site && export PYTHONPATH=/tmp/site
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -49,7 +49,7 @@ for plugin in ellipsoids ellipsoidsmesh volpath volpathmis prbvolpath sunsky tim
               bsplinecurve linearcurve sdfgrid ptracer principled principledthin; do
     rm -f "$mi/plugins/$plugin.so"  # large plugins no e2sr scene uses
 done
-tar czf "$out.tmp" -C "$work/site" .
-mv "$out.tmp" "$out"
+tar czf "$work/bundle.tgz" -C "$work/site" .
+mv "$work/bundle.tgz" "$out.tmp-$$" && mv "$out.tmp-$$" "$out"  # never a half-written $out
 echo "wrote $out ($(du -h "$out" | cut -f1); mitsuba $mitsuba_version, drjit $drjit_version," \
      "cp${pyver/./}, variants: $keep)"

@@ -16,7 +16,7 @@
 #   bench_datagen.md     sequences/min, Mitsuba (auto variant: cuda_ad_mono) vs homography
 #   compare_backends.md  the Mitsuba variant's events against the homography backend's
 # About 2 minutes on a 2-core CPU machine (no GPU: the CUDA rows and test are left out);
-# the step limits add up to 10 minutes.
+# the step limits add up to 10 minutes. Exits non-zero when a step failed or ran out of time.
 set -uo pipefail
 if [[ $# -lt 1 ]]; then
     echo "usage: bash bench/gpu_check.sh OUT_DIR [BUNDLE_TGZ]" >&2
@@ -28,6 +28,7 @@ py="${PYTHON:-python3}"
 export PYTHONUNBUFFERED=1
 if [[ $# -ge 2 ]]; then
     site="$(mktemp -d)"
+    trap 'rm -rf "$site"' EXIT
     tar xzf "$2" -C "$site" || { echo "gpu_check: cannot unpack $2" >&2; exit 2; }
     export PYTHONPATH="$site:$repo"
 else
@@ -35,6 +36,7 @@ else
 fi
 cd "$repo"
 
+failed=0
 step() {  # step NAME LIMIT_S FILE COMMAND...: run, keep its output, say how it ended
     local name="$1" limit="$2" file="$3"
     shift 3
@@ -42,6 +44,7 @@ step() {  # step NAME LIMIT_S FILE COMMAND...: run, keep its output, say how it 
     timeout "$limit" "$@" >"$out/$file" 2>&1
     local rc=$?
     echo "$name: exit $rc after $((SECONDS - start)) s -> $file"
+    [[ $rc -eq 0 ]] || failed=1
 }
 
 {
@@ -75,3 +78,4 @@ step bench_events 120 bench_events.md "$py" bench/bench_events.py --repeats 3
 step bench_datagen 150 bench_datagen.md "$py" bench/bench_datagen.py --ratio --n-seq 4 \
     --repeats 2 --workers 1
 step compare_backends 90 compare_backends.md "$py" bench/compare_backends.py --n-seq 4
+exit $failed
