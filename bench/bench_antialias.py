@@ -20,9 +20,9 @@ import numpy as np
 from datagen.config import DatagenConfig
 from datagen.sampling import sample_sequence
 from datagen.textures import TextureSampler
-from esim_lite.antialias import texels_per_sample
-from esim_lite.render_homography import HomographyRenderer
-from esim_lite.scene import PlanarScene
+from esim_lite.geometry.scene import PlanarScene
+from esim_lite.render.antialias import texels_per_sample
+from esim_lite.render.homography import HomographyRenderer
 from esim_lite.sequence import simulate
 
 

@@ -119,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
 def machine() -> str:
     """The CPU count and the Mitsuba variant the mitsuba rows run on (CUDA where drjit
     sees a GPU), for the table's header."""
-    from esim_lite.render_mitsuba import resolve_variant
+    from esim_lite.render.mitsuba import resolve_variant
 
     return f"{os.cpu_count()} CPUs; mitsuba variant {resolve_variant()}"
 

@@ -16,7 +16,7 @@ texture moving fast: frames 7 ms apart, about 0.15). Timed, on one pinned core:
   per frame (u8 -> linear -> log, kernel, time order, Events record) and the final
   ``Events.concatenate``; for esim_py, its own per-frame conversion (convertTo, cv::log),
   ``imageCallback`` (crossings, per-frame std::sort) and the (N, 4) result matrix; for the
-  torch kernel (``esim_lite.event_torch``), the 8-bit frames as one tensor moved to the
+  torch kernel (``esim_lite.events.torch_kernel``), the 8-bit frames as one tensor moved to the
   device, u8 -> linear -> log there, ``TorchEventCamera.simulate`` (state on the device;
   backend ``torch``: one vectorised step per frame; ``triton``, on CUDA: the whole stack in
   two launches) and the events back on the host as an ``Events`` record.
@@ -40,15 +40,15 @@ import cv2
 import numpy as np
 from skimage import data
 
-from esim_lite.camera import Intrinsics
 from esim_lite.core.events import Events
-from esim_lite.event_kernel import NEVER, TIE_TOL
-from esim_lite.event_reference import numpy_step, python_step
-from esim_lite.renderer import RenderConfig, make_renderer
-from esim_lite.scene import PlanarScene
-from esim_lite.simulator import EventSimulator, _NumbaKernel, log_intensity
-from esim_lite.thresholds import ContrastThresholds
-from esim_lite.trajectory import TrajectoryConfig, plane_extent_covering, sample_trajectory
+from esim_lite.events.kernel import NEVER, TIE_TOL
+from esim_lite.events.reference import numpy_step, python_step
+from esim_lite.events.simulator import EventSimulator, _NumbaKernel, log_intensity
+from esim_lite.events.thresholds import ContrastThresholds
+from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.scene import PlanarScene
+from esim_lite.geometry.trajectory import TrajectoryConfig, plane_extent_covering, sample_trajectory
+from esim_lite.render.renderer import RenderConfig, make_renderer
 
 THRESHOLD = 0.2
 LOG_EPS = 1e-3
@@ -100,14 +100,14 @@ def torch_kernel_run(logs, device, backend: str) -> int:
     already on ``device``; returns the number of events."""
     import torch
 
-    from esim_lite.event_torch import torch_step
+    from esim_lite.events.torch_kernel import torch_step
 
     h, w = logs.shape[1:]
     c = torch.full((h, w), THRESHOLD, dtype=torch.float64, device=device)
     ref = logs[0].to(torch.float64)
     last = torch.full((h, w), NEVER, dtype=torch.int64, device=device)
     if backend == "triton":
-        from esim_lite.event_triton import sweep
+        from esim_lite.events.triton_kernel import sweep
 
         times = torch.arange(len(logs), dtype=torch.int64, device=device) * 1000
         n_events = sweep(logs, times, ref, last, c, c, 0, TIE_TOL)[0].numel()
@@ -125,7 +125,7 @@ def torch_simulate(frames: np.ndarray, step_ns: int, device, backend: str) -> Ev
     """Frames in memory -> one time-sorted event list, with the torch camera on ``device``."""
     import torch
 
-    from esim_lite.event_torch import TorchEventCamera
+    from esim_lite.events.torch_kernel import TorchEventCamera
 
     th = ContrastThresholds.uniform(THRESHOLD, THRESHOLD, frames.shape[1:])
     u8 = torch.from_numpy(frames).to(device)

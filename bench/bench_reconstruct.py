@@ -26,9 +26,9 @@ import torch
 
 from esim_lite.core.events import Events
 from esim_lite.core.stacking import StackConfig, stack_sequence
+from model import checkpoint
 from model.archs.e2sri_arch import E2SRI, NetConfig
 from model.inference.reconstruct import EventWindow, Reconstructor
-from model.training import checkpoint
 
 HW = (180, 240)
 PER_CHANNEL = 2637  # 3 x 2637 = 7,911 events per stack: 3,000 at 128x128 scaled by area
@@ -80,7 +80,7 @@ def write_h5(path: Path, n: int, chunk: int = 5_000_000) -> None:
 
 def small_checkpoint(path: Path) -> Path:
     from esim_lite.core.dataconf import load_yaml, to_yaml
-    from model.training.config import TrainConfig
+    from model.config import TrainConfig
 
     cfg = load_yaml(TrainConfig, Path(__file__).resolve().parents[1] / "configs" /
                     "train_small.yaml")

@@ -20,10 +20,10 @@ import cv2
 import numpy as np
 from skimage import data
 
-from esim_lite.camera import Intrinsics
-from esim_lite.renderer import RenderConfig, make_renderer
-from esim_lite.scene import PlanarScene
-from esim_lite.trajectory import TrajectoryConfig, plane_extent_covering, sample_trajectory
+from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.scene import PlanarScene
+from esim_lite.geometry.trajectory import TrajectoryConfig, plane_extent_covering, sample_trajectory
+from esim_lite.render.renderer import RenderConfig, make_renderer
 
 
 def run(backend: str, size: int, supersample: int, frames: int, repeats: int,

@@ -13,13 +13,13 @@ import time
 import numpy as np
 
 from esim_lite.config import CameraConfig, FrameConfig, SimulationConfig
-from esim_lite.renderer import RenderConfig
-from esim_lite.sampling import SamplingConfig
-from esim_lite.scene import PlanarScene
+from esim_lite.events.sampling import SamplingConfig
+from esim_lite.events.simulator import EventSimulator
+from esim_lite.events.thresholds import ContrastThresholds
+from esim_lite.geometry.scene import PlanarScene
+from esim_lite.geometry.trajectory import TrajectoryConfig, plane_extent_covering, sample_trajectory
+from esim_lite.render.renderer import RenderConfig
 from esim_lite.sequence import simulate
-from esim_lite.simulator import EventSimulator
-from esim_lite.thresholds import ContrastThresholds
-from esim_lite.trajectory import TrajectoryConfig, plane_extent_covering, sample_trajectory
 
 FAST = TrajectoryConfig(speed_m_s=(2.0, 3.0), angular_speed_deg_s=(300, 400))
 

@@ -32,9 +32,9 @@ from torch.utils.data import DataLoader
 
 from esim_lite.core.dataconf import load_yaml
 from model.archs.e2sri_arch import E2SRI, count_parameters
+from model.config import TrainConfig
 from model.data.dataset import ShardSamples, find_shards, index_samples
 from model.losses.similarity import SimilarityLoss
-from model.training.config import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 

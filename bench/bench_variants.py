@@ -24,8 +24,8 @@ import torch
 
 from esim_lite.core.dataconf import load_yaml
 from model.archs.e2sri_arch import E2SRI, count_parameters
+from model.config import TrainConfig
 from model.losses.similarity import SimilarityLoss
-from model.training.config import TrainConfig
 
 
 def example(cfg, b: int, h: int, w: int):

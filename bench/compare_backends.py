@@ -24,7 +24,7 @@ import numpy as np
 from datagen.config import DatagenConfig
 from datagen.sampling import sample_sequence
 from datagen.textures import TextureSampler
-from esim_lite.renderer import make_renderer
+from esim_lite.render.renderer import make_renderer
 from esim_lite.sequence import sample_footprints, simulate_sequence
 
 

@@ -64,7 +64,7 @@ import torch
 
 print("torch sees CUDA:", torch.cuda.is_available(),
       torch.cuda.get_device_name(0) if torch.cuda.is_available() else "")
-from esim_lite.render_mitsuba import resolve_variant
+from esim_lite.render.mitsuba import resolve_variant
 
 print("mitsuba auto variant:", resolve_variant("auto"))
 EOF

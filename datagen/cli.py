@@ -10,8 +10,8 @@ import sys
 from pathlib import Path
 
 from datagen.config import DatagenConfig
-from esim_lite.core.contracts import SCALES
 from esim_lite.core.dataconf import ConfigError, apply_overrides, from_mapping, load_yaml
+from esim_lite.geometry.camera import SCALES
 
 log = logging.getLogger("datagen")
 

@@ -32,7 +32,7 @@ from datagen.sampling import sample_sequence
 from datagen.shard import ShardReader, ShardWriter
 from datagen.textures import TextureSampler
 from esim_lite.core.dataconf import to_yaml
-from esim_lite.renderer import make_renderer
+from esim_lite.render.renderer import make_renderer
 from esim_lite.sequence import sample_footprints, simulate
 
 log = logging.getLogger(__name__)
@@ -90,7 +90,7 @@ def _resolve_variant(config: DatagenConfig) -> DatagenConfig:
     render = config.simulation.render
     if render.backend != "mitsuba":
         return config
-    from esim_lite.render_mitsuba import resolve_variant
+    from esim_lite.render.mitsuba import resolve_variant
 
     render = dataclasses.replace(render, mitsuba_variant=resolve_variant(render.mitsuba_variant))
     return dataclasses.replace(config, simulation=dataclasses.replace(config.simulation,

@@ -13,9 +13,13 @@ import numpy as np
 
 from datagen.textures import TextureSampler
 from esim_lite.config import SimulationConfig
-from esim_lite.scene import PlanarScene
-from esim_lite.thresholds import ContrastThresholds, sample_thresholds
-from esim_lite.trajectory import BSplineTrajectory, plane_extent_covering, sample_trajectory
+from esim_lite.events.thresholds import ContrastThresholds, sample_thresholds
+from esim_lite.geometry.scene import PlanarScene
+from esim_lite.geometry.trajectory import (
+    BSplineTrajectory,
+    plane_extent_covering,
+    sample_trajectory,
+)
 
 
 def sequence_streams(seed: int, index: int) -> dict[str, np.random.Generator]:

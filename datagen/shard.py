@@ -22,8 +22,10 @@ seq_000012/                      attrs: sensor_resolution [H, W], num_events, nu
   scene              attrs width_m, height_m, texture_hw; plane z = 0, normal +z
   trajectory/        positions [K,3], rotations [K,3,3], attr knot_spacing_s, duration_s
   thresholds/        pos_map, neg_map float32[H,W] (only when per-pixel mismatch is on)
-/ (file)             attrs: schema_version, config (resolved YAML), complete; from datagen
-                     also seed and sequences (the indices the shard is to hold)
+/ (file)             attrs: schema_version, config (resolved YAML), complete, versions (JSON:
+                     the library versions that shape the bytes, see library_versions; absent
+                     in shards written before they were recorded); from datagen also seed
+                     and sequences (the indices the shard is to hold)
 ```
 
 Frames are stored as float16 when its rounding (relative 2^-12) changes ``log(eps + I)`` by
@@ -32,7 +34,9 @@ at most 1% of the sequence's smallest contrast threshold, otherwise as float32.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -40,13 +44,13 @@ import h5py
 import numpy as np
 import yaml
 
-from esim_lite.camera import Intrinsics
 from esim_lite.config import FrameConfig
 from esim_lite.core.dataconf import from_mapping
 from esim_lite.core.events import Events
 from esim_lite.core.frames import Frames
-from esim_lite.thresholds import ContrastThresholds
-from esim_lite.trajectory import BSplineTrajectory
+from esim_lite.events.thresholds import ContrastThresholds
+from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.trajectory import BSplineTrajectory
 
 if TYPE_CHECKING:
     from datagen.sampling import SequenceSpec
@@ -66,6 +70,26 @@ def sequence_name(index: int) -> str:
     return f"seq_{index:06d}"
 
 
+def library_versions() -> dict[str, str]:
+    """Versions of the libraries whose arithmetic shapes a shard's bytes (a dataset is
+    bit-identical only per stack: e.g. OpenCV's warpPerspective rounds differently across
+    versions); ``not installed`` for a missing one. Read from package metadata, so nothing
+    heavy is imported and Mitsuba's variant is left alone; OpenCV's is the loaded module's,
+    whichever of its wheels provides it."""
+    import cv2  # imported by the renderers anyway
+
+    def installed(dist: str) -> str:
+        try:
+            return metadata.version(dist)
+        except metadata.PackageNotFoundError:
+            return "not installed"
+
+    return {"numpy": np.__version__, "opencv": cv2.__version__,
+            "mitsuba": installed("mitsuba"), "drjit": installed("drjit"),
+            "numba": installed("numba"), "h5py": h5py.__version__,
+            "hdf5": h5py.version.hdf5_version, "e2sr": installed("e2sr")}
+
+
 class ShardWriter:
     """Writes sequences into one open HDF5 file; events and frames are appended in chunks.
 
@@ -80,6 +104,7 @@ class ShardWriter:
         self.file.attrs["schema_version"] = SCHEMA_VERSION
         self.file.attrs["config"] = config_yaml
         self.file.attrs["complete"] = False
+        self.file.attrs["versions"] = json.dumps(library_versions())
         if seed is not None:  # a dataset's shard: which seed and sequences it is to hold
             self.file.attrs["seed"] = seed
             self.file.attrs["sequences"] = list(sequences or [])
@@ -320,6 +345,19 @@ class ShardReader:
         return int(self.file.attrs["schema_version"])
 
     @property
+    def versions(self) -> dict[str, str] | None:
+        """The library versions the shard was written with (see :func:`library_versions`);
+        None for a shard written before they were recorded."""
+        text = self.file.attrs.get("versions")
+        if text is None:
+            return None
+        try:
+            return dict(json.loads(text))
+        except (TypeError, ValueError) as exc:  # JSONDecodeError is a ValueError
+            raise ValueError(f"{self.path}: the versions attribute is not a JSON object "
+                             f"({exc})") from exc
+
+    @property
     def seed(self) -> int | None:
         """The dataset's master seed (None for a shard not written by ``datagen``)."""
         seed = self.file.attrs.get("seed")
@@ -369,6 +407,12 @@ class ShardReader:
         """Time of the last event (0 for a sequence without events)."""
         ts = self._group(name)["events/ts"]
         return int(round(ts[ts.shape[0] - 1] * 1e9)) if ts.shape[0] else 0
+
+    def event_dtypes(self, name: str) -> dict[str, np.dtype]:
+        """Stored dtype of each event dataset of sequence ``name`` (``xs``, ``ys``, ``ts``,
+        ``ps``), for readers that check a file before doing arithmetic on it."""
+        ev = self._group(name)["events"]
+        return {k: ev[k].dtype for k in ("xs", "ys", "ts", "ps")}
 
     def summary(self, name: str) -> SequenceSummary:
         g = self._group(name)

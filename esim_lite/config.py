@@ -5,12 +5,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
-from esim_lite.camera import CameraRig, Intrinsics
-from esim_lite.core.contracts import check_scales
-from esim_lite.renderer import RenderConfig
-from esim_lite.sampling import SamplingConfig
-from esim_lite.simulator import EventConfig
-from esim_lite.trajectory import TrajectoryConfig
+from esim_lite.events.sampling import SamplingConfig
+from esim_lite.events.simulator import EventConfig
+from esim_lite.geometry.camera import CameraRig, Intrinsics, check_scales
+from esim_lite.geometry.trajectory import TrajectoryConfig
+from esim_lite.render.renderer import RenderConfig
 
 
 @dataclass(frozen=True)

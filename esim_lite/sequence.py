@@ -7,19 +7,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from esim_lite.antialias import texels_per_sample
-from esim_lite.camera import CameraRig
 from esim_lite.config import FrameConfig, SimulationConfig
 from esim_lite.core.events import Events
 from esim_lite.core.frames import Frames
-from esim_lite.noise import NoiseModel
-from esim_lite.pose import Pose
-from esim_lite.renderer import RenderConfig, Renderer, make_renderer, supersample_for
-from esim_lite.sampling import AdaptiveSampler
-from esim_lite.scene import PlanarScene
-from esim_lite.simulator import EventSimulator, log_intensity
-from esim_lite.thresholds import ContrastThresholds
-from esim_lite.trajectory import BSplineTrajectory
+from esim_lite.events.noise import NoiseModel
+from esim_lite.events.sampling import AdaptiveSampler
+from esim_lite.events.simulator import EventSimulator, log_intensity
+from esim_lite.events.thresholds import ContrastThresholds
+from esim_lite.geometry.camera import CameraRig
+from esim_lite.geometry.pose import Pose
+from esim_lite.geometry.scene import PlanarScene
+from esim_lite.geometry.trajectory import BSplineTrajectory
+from esim_lite.render.antialias import texels_per_sample
+from esim_lite.render.renderer import RenderConfig, Renderer, make_renderer, supersample_for
 
 
 @dataclass(frozen=True, eq=False)

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from esim_lite.core.dataconf import ConfigError, apply_overrides, from_mapping, load_yaml
-from model.training.config import TrainConfig
+from model.config import TrainConfig
 
 
 def load_config(path: str | None, overrides: list[str]) -> TrainConfig:
@@ -197,8 +197,8 @@ def export_main(argv: list[str] | None = None) -> int:
     try:
         import json
 
+        from model import checkpoint
         from model.inference.pretrained import export
-        from model.training import checkpoint
 
         state = checkpoint.load(args.checkpoint)
         info = {"data": args.data, "recipe": args.recipe, "step": state.get("step"),

@@ -7,9 +7,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from esim_lite.camera import Intrinsics
-from esim_lite.scene import PlanarScene
-from esim_lite.trajectory import TrajectoryConfig, plane_extent_covering, sample_trajectory
+from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.scene import PlanarScene
+from esim_lite.geometry.trajectory import TrajectoryConfig, plane_extent_covering, sample_trajectory
 
 REAL_EVENTS = Path(__file__).resolve().parents[2] / "shared" / "real_events"
 

@@ -193,3 +193,22 @@ def stack_to_input(stacks: np.ndarray) -> np.ndarray:
     out = (stacks.astype(np.float32) - 127.5) / 127.5
     out[stacks == 128] = 0.0
     return out
+
+
+def stack_fit_warnings(every_events: int, tail_events: int, events_per_stack: int,
+                       n_stacks: int, overlap: int = 0) -> list[str]:
+    """Why frames laid out by datagen (one every ``every_events`` events, ``tail_events``
+    after the last) fit the training stacks badly: empty when they agree.
+
+    A sample needs ``events_per_stack + half * step`` events before its frame and
+    ``half * step`` after it (``step = events_per_stack - overlap``, ``half = n_stacks // 2``).
+    """
+    half, step = n_stacks // 2, events_per_stack - overlap
+    out = []
+    if tail_events < half * step:
+        out.append(f"{tail_events:,} events after the last frame, but {n_stacks} stacks of "
+                   f"{events_per_stack:,} need {half * step:,}: the last frames go unused")
+    if every_events > events_per_stack:
+        out.append(f"frames every {every_events:,} events but stacks of {events_per_stack:,}: "
+                   "events between stacks are never seen by the network")
+    return out

@@ -29,7 +29,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from esim_lite.core.contracts import check_scales
+from esim_lite.geometry.camera import check_scales
 from model.archs.blocks import conv, deconv, down, res_stack
 from model.archs.flow import FlowNet
 

@@ -15,53 +15,28 @@ import logging
 import math
 import os
 import zlib
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
 import numpy as np
 import torch
 from torch.utils.data import Dataset
 
 from datagen.shard import ShardReader
-from esim_lite.core.contracts import hr_camera, stack_fit_warnings
-from esim_lite.core.stacking import StackConfig, stack_span_ns, stack_to_input, stacks_around
-from esim_lite.motion import planar_flow
-from esim_lite.pose import Pose
-from model.archs.flow import stack_flows
+from esim_lite.core.stacking import (
+    stack_fit_warnings,
+    stack_span_ns,
+    stack_to_input,
+    stacks_around,
+)
+from esim_lite.geometry.camera import hr_camera
+from esim_lite.geometry.motion import planar_flow
+from esim_lite.geometry.pose import Pose
+from model.data.classical_flow import stack_flows
+from model.data.config import DataConfig
 from model.data.input_cache import InputCache
 
 log = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True)
-class DataConfig:
-    """How samples are cut from the shards.
-
-    Attributes:
-        stacks: SBN settings (events per channel, channels, cap, overlap).
-        crop: LR crop side for training (the paper's 64); None trains on whole frames.
-        val_fraction: share of sequences held out (by a hash of shard and sequence name).
-        flow: classical flow computed here (``dis``, ``farneback``), ``exact`` (the
-            simulator's analytic flow between the stacks' end times: training targets for
-            the learned FNet), or ``none``.
-        flips: random horizontal/vertical flips in training.
-        cache: precompute SBN stacks, flow and frames once into ``<data>/cache/`` and train
-            from memory maps (model/data/input_cache.py); flow is then computed on whole frames.
-    """
-
-    stacks: StackConfig = field(default_factory=StackConfig)
-    crop: int | None = 64
-    val_fraction: float = 0.1
-    flow: Literal["dis", "farneback", "exact", "none"] = "dis"
-    flips: bool = True
-    cache: bool = False
-
-    def __post_init__(self) -> None:
-        if self.crop is not None and self.crop < 16:
-            raise ValueError("crop must be >= 16 (or null for whole frames)")
-        if not 0 <= self.val_fraction < 1:
-            raise ValueError("val_fraction must be in [0, 1)")
 
 
 @dataclass(frozen=True)

@@ -39,17 +39,18 @@ import torch
 
 from datagen.shard import ShardReader
 from esim_lite.core.atomic import write_text
-from esim_lite.core.contracts import READ_CHUNK_EVENTS, hr_camera
 from esim_lite.core.figures import contact_sheet, event_image, gray_to_rgb, write_png
+from esim_lite.geometry.camera import hr_camera
+from model import checkpoint
 from model.archs.e2sri_arch import mode_of
 from model.data.dataset import find_shards, index_samples
+from model.data.formats.base import READ_CHUNK_EVENTS
 from model.data.recording import Recording, open_recording
 from model.inference.baselines import EventFilter, FilterConfig, upsample
 from model.inference.reconstruct import OutputPlan, Reconstructor, output_times
 from model.inference.temporal import reference_motion, temporally_consistent, warp_error
 from model.losses.lpips import LPIPS
 from model.metrics.image import mse, psnr, ssim
-from model.training import checkpoint
 
 log = logging.getLogger(__name__)
 BASELINES = ("hf", "direct", "complementary")

@@ -19,7 +19,7 @@ from typing import Any
 import torch
 
 from esim_lite.core.atomic import atomic_path, write_text
-from model.training import checkpoint
+from model import checkpoint
 
 WEIGHTS = Path(__file__).resolve().parents[1] / "weights"
 MANIFEST = "manifest.json"

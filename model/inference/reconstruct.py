@@ -26,14 +26,14 @@ import torch
 from tqdm import tqdm
 
 from esim_lite.core.atomic import atomic_path, write_text
-from esim_lite.core.contracts import READ_CHUNK_EVENTS, TRAINED_SENSOR_HW
 from esim_lite.core.events import Events
 from esim_lite.core.stacking import StackConfig, stack_span_ns, stack_to_input, stacks_around
+from model import checkpoint
 from model.archs.e2sri_arch import CENTRAL_OF_MODE, E2SRI, central_input
-from model.archs.flow import stack_flows
+from model.data.classical_flow import stack_flows
+from model.data.formats.base import READ_CHUNK_EVENTS
 from model.data.recording import Recording
 from model.inference.temporal import consistency_step
-from model.training import checkpoint
 
 log = logging.getLogger(__name__)
 Mode = Literal["main", "complementary", "duo-pass"]
@@ -151,7 +151,7 @@ class Reconstructor:
                 raise ValueError("duo-pass needs --first-pass (a main model checkpoint)")
             first = checkpoint.load_model(path, dev)
         trained = checkpoint.config_of(state, ckpt).data.stacks
-        trained_hw = tuple(state.get("sensor_hw") or TRAINED_SENSOR_HW)
+        trained_hw = tuple(state.get("sensor_hw") or checkpoint.TRAINED_SENSOR_HW)
         if "sensor_hw" not in state:
             log.warning("%s records no training sensor size; assuming the paper's %dx%d "
                         "(stack sizes scale by area from it)", ckpt, trained_hw[1], trained_hw[0])

@@ -13,7 +13,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from model.archs.flow import classical_flow
+from model.data.classical_flow import classical_flow
 
 
 def _flow(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -2,7 +2,7 @@
 
 The simulator knows the scene is a plane and knows every pose, so the flow between the
 central stack's end time and each side stack's end time is exact
-(:func:`esim_lite.motion.planar_flow`). The loss is the end-point error (EPE, pixels);
+(:func:`esim_lite.geometry.motion.planar_flow`). The loss is the end-point error (EPE, pixels);
 validation reports it beside two baselines: zero flow and OpenCV's DIS on the stacks.
 """
 
@@ -20,10 +20,11 @@ from tqdm import tqdm
 
 from esim_lite.core.atomic import write_text
 from esim_lite.core.dataconf import to_yaml
-from model.archs.flow import FlowNet, stack_flows
+from model import checkpoint
+from model.archs.flow import FlowNet
+from model.config import TrainConfig
+from model.data.classical_flow import stack_flows
 from model.data.dataset import ShardSamples
-from model.training import checkpoint
-from model.training.config import TrainConfig
 from model.training.setup import build_data, epoch_batches
 
 

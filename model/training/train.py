@@ -24,12 +24,12 @@ from tqdm import tqdm
 
 from esim_lite.core.atomic import write_text
 from esim_lite.core.dataconf import to_yaml
+from model import checkpoint
 from model.archs import e2sri_arch
 from model.archs.e2sri_arch import E2SRI, count_parameters
+from model.config import OptimConfig, TrainConfig
 from model.losses.similarity import SimilarityLoss
 from model.metrics.image import mse, psnr, ssim
-from model.training import checkpoint
-from model.training.config import OptimConfig, TrainConfig
 from model.training.curves import ValHistory
 from model.training.setup import Distributed, TrainData, build_data, epoch_batches, init_distributed
 from model.training.warm_start import warm_start
@@ -60,7 +60,7 @@ def central_input(batch: dict, config: TrainConfig, first_pass: E2SRI | None) ->
 
 
 @torch.inference_mode()
-def evaluate(net: E2SRI, loader: DataLoader, config: TrainConfig, device: torch.device,
+def validate(net: E2SRI, loader: DataLoader, config: TrainConfig, device: torch.device,
              first_pass: E2SRI | None, lpips_net, max_batches: int | None = None
              ) -> tuple[dict[str, float], list[tuple[np.ndarray, ...]]]:
     """Mean PSNR/SSIM/MSE/LPIPS over the held-out split, and a few (stack, lr, out, hr)."""
@@ -221,7 +221,7 @@ class RunLog:
 
     def validate(self, state: TrainState) -> tuple[dict[str, float], list]:
         cfg, hw = self.cfg, self.data.sensor_hw
-        metrics, examples = evaluate(state.net, self.val_loader, cfg, self.env.device,
+        metrics, examples = validate(state.net, self.val_loader, cfg, self.env.device,
                                      state.first_pass, state.criterion.lpips,
                                      cfg.run.val_batches)
         for k, v in metrics.items():

@@ -18,8 +18,8 @@ from pathlib import Path
 import torch
 
 from esim_lite.core.dataconf import from_mapping
+from model import checkpoint
 from model.archs.e2sri_arch import E2SRI, NetConfig
-from model.training import checkpoint
 
 log = logging.getLogger(__name__)
 

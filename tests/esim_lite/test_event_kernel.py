@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from esim_lite.simulator import EventSimulator
-from esim_lite.thresholds import ContrastThresholds
+from esim_lite.events.simulator import EventSimulator
+from esim_lite.events.thresholds import ContrastThresholds
 
 KERNELS = ["numba", "numpy", "python", "torch"]
 
@@ -150,7 +150,7 @@ def test_samples_must_move_forward():
 
 @pytest.mark.parametrize("span", [1, 255, 256, 70_000, 2**40])
 def test_time_order_is_a_stable_sort(span):
-    from esim_lite.event_kernel import time_order
+    from esim_lite.events.kernel import time_order
 
     rng = np.random.default_rng(span)
     t0 = 10**12

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from esim_lite.event_torch import TorchEventCamera, default_device, torch_step
-from esim_lite.simulator import EventSimulator
-from esim_lite.thresholds import ContrastThresholds
+from esim_lite.events.simulator import EventSimulator
+from esim_lite.events.thresholds import ContrastThresholds
+from esim_lite.events.torch_kernel import TorchEventCamera, default_device, torch_step
 
 DEVICES = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
 

@@ -25,8 +25,8 @@ ROOT = Path(__file__).resolve().parents[2]
 
 def compare(device: str) -> list[str]:
     """Runs every case on ``device``; returns one line per case (raises on a mismatch)."""
-    from esim_lite import event_torch
-    from esim_lite.event_torch import TorchEventCamera
+    from esim_lite.events import torch_kernel as event_torch
+    from esim_lite.events.torch_kernel import TorchEventCamera
     from tests.esim_lite.test_event_torch import numba_stream, random_video
 
     lines = []
@@ -78,7 +78,13 @@ def test_cuda_build_keeps_every_float64_rounding(write):
     from triton.backends.compiler import GPUTarget
     from triton.compiler import ASTSource
 
-    from esim_lite.event_triton import BLOCK, COMPILE_OPTIONS, SIGNATURE, _sweep, interpreting
+    from esim_lite.events.triton_kernel import (
+        BLOCK,
+        COMPILE_OPTIONS,
+        SIGNATURE,
+        _sweep,
+        interpreting,
+    )
 
     if interpreting():
         pytest.skip("this process interprets Triton")
@@ -95,7 +101,7 @@ def test_cuda_build_keeps_every_float64_rounding(write):
 
 
 def test_cpu_tensors_outside_the_interpreter_are_refused():
-    from esim_lite.event_triton import interpreting, sweep
+    from esim_lite.events.triton_kernel import interpreting, sweep
 
     if interpreting():
         pytest.skip("this process interprets Triton")
@@ -107,7 +113,7 @@ def test_cpu_tensors_outside_the_interpreter_are_refused():
 
 
 def test_auto_backend_picks_triton_only_on_cuda():
-    from esim_lite.event_torch import resolve_backend
+    from esim_lite.events.torch_kernel import resolve_backend
 
     assert resolve_backend("auto", torch.device("cpu")) == "torch"
     assert resolve_backend("auto", torch.device("cuda")) == "triton"

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from esim_lite.camera import CameraRig, Intrinsics
-from esim_lite.motion import motion_field, project_plane_point
-from esim_lite.pose import Pose, matrix_from_quat, quat_from_matrix, so3_exp, so3_log
-from esim_lite.scene import intersect_plane
-from esim_lite.trajectory import LOOK_DOWN, TrajectoryConfig, sample_trajectory
+from esim_lite.geometry.camera import CameraRig, Intrinsics
+from esim_lite.geometry.motion import motion_field, project_plane_point
+from esim_lite.geometry.pose import Pose, matrix_from_quat, quat_from_matrix, so3_exp, so3_log
+from esim_lite.geometry.scene import intersect_plane
+from esim_lite.geometry.trajectory import LOOK_DOWN, TrajectoryConfig, sample_trajectory
 from tests.conftest import scene_and_trajectory
 
 
@@ -124,7 +124,7 @@ def test_motion_field_matches_projected_finite_differences():
 
 
 def test_planar_flow_is_the_exact_displacement_and_integrates_the_motion_field():
-    from esim_lite.motion import planar_flow
+    from esim_lite.geometry.motion import planar_flow
 
     cam = Intrinsics(90.0, 90.0, 30.5, 21.0, 64, 48)
     traj = sample_trajectory(TrajectoryConfig(angular_speed_deg_s=(60, 90)), 0.5, cam,

@@ -7,17 +7,17 @@ import numpy as np
 import pytest
 from skimage import data
 
-from esim_lite import render_mitsuba
-from esim_lite.antialias import texels_per_sample
-from esim_lite.camera import CameraRig, Intrinsics
-from esim_lite.motion import project_plane_point
-from esim_lite.pose import Pose, so3_exp
-from esim_lite.renderer import RenderConfig, make_renderer
-from esim_lite.scene import PlanarScene
+from esim_lite.events.simulator import EventSimulator
+from esim_lite.events.thresholds import ContrastThresholds
+from esim_lite.geometry.camera import CameraRig, Intrinsics
+from esim_lite.geometry.motion import project_plane_point
+from esim_lite.geometry.pose import Pose, so3_exp
+from esim_lite.geometry.scene import PlanarScene
+from esim_lite.geometry.trajectory import LOOK_DOWN
+from esim_lite.render import mitsuba as render_mitsuba
+from esim_lite.render.antialias import texels_per_sample
+from esim_lite.render.renderer import RenderConfig, make_renderer
 from esim_lite.sequence import sample_footprints
-from esim_lite.simulator import EventSimulator
-from esim_lite.thresholds import ContrastThresholds
-from esim_lite.trajectory import LOOK_DOWN
 from tests.conftest import scene_and_trajectory, smooth_texture
 
 

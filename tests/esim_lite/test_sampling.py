@@ -5,15 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from esim_lite.camera import Intrinsics
 from esim_lite.config import CameraConfig, SimulationConfig
-from esim_lite.motion import motion_field
-from esim_lite.renderer import RenderConfig
-from esim_lite.sampling import SamplingConfig, log_change_rate_bound, max_log_change_rate
+from esim_lite.events.sampling import SamplingConfig, log_change_rate_bound, max_log_change_rate
+from esim_lite.events.simulator import EventSimulator
+from esim_lite.events.thresholds import ContrastThresholds
+from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.motion import motion_field
+from esim_lite.geometry.trajectory import TrajectoryConfig, sample_trajectory
+from esim_lite.render.renderer import RenderConfig
 from esim_lite.sequence import simulate
-from esim_lite.simulator import EventSimulator
-from esim_lite.thresholds import ContrastThresholds
-from esim_lite.trajectory import TrajectoryConfig, sample_trajectory
 from tests.conftest import scene_and_trajectory, smooth_texture
 
 # Hand-shake speeds: features cross pixels within one 50 Hz frame.

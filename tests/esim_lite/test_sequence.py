@@ -7,12 +7,12 @@ import pytest
 
 from esim_lite.config import CameraConfig, FrameConfig, SimulationConfig
 from esim_lite.core.events import Events
-from esim_lite.noise import NoiseConfig, NoiseModel
-from esim_lite.renderer import RenderConfig
+from esim_lite.events.noise import NoiseConfig, NoiseModel
+from esim_lite.events.simulator import EventConfig, EventSimulator
+from esim_lite.events.thresholds import ContrastThresholds, ThresholdConfig, sample_thresholds
+from esim_lite.geometry.trajectory import TrajectoryConfig
+from esim_lite.render.renderer import RenderConfig
 from esim_lite.sequence import FrameSchedule, frame_times_ns, simulate, simulate_sequence
-from esim_lite.simulator import EventConfig, EventSimulator
-from esim_lite.thresholds import ContrastThresholds, ThresholdConfig, sample_thresholds
-from esim_lite.trajectory import TrajectoryConfig
 from tests.conftest import scene_and_trajectory
 
 SMALL = CameraConfig(width=64, height=48, scales=(2,))

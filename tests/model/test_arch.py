@@ -11,8 +11,9 @@ import torch
 from esim_lite.core.dataconf import load_yaml
 from esim_lite.core.stacking import StackConfig
 from model.archs.e2sri_arch import E2SRI, NetConfig, count_parameters
-from model.data.dataset import DataConfig, ShardSamples, find_shards, index_samples
-from model.training.config import TrainConfig
+from model.config import TrainConfig
+from model.data.config import DataConfig
+from model.data.dataset import ShardSamples, find_shards, index_samples
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = sorted((ROOT / "configs").glob("train_*.yaml"))
@@ -150,7 +151,7 @@ def test_folding_space_to_depth_handles_any_size(scale):
 
 
 def test_the_network_has_a_projection_for_every_scale_datagen_renders():
-    from esim_lite.core.contracts import SCALES
+    from esim_lite.geometry.camera import SCALES
     from model.archs.blocks import PROJECTION
 
     assert set(PROJECTION) == set(SCALES)

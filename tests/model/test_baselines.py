@@ -7,9 +7,9 @@ import pytest
 
 from esim_lite.config import CameraConfig, SimulationConfig
 from esim_lite.core.events import Events
-from esim_lite.renderer import RenderConfig
+from esim_lite.events.thresholds import ContrastThresholds
+from esim_lite.render.renderer import RenderConfig
 from esim_lite.sequence import simulate_sequence
-from esim_lite.thresholds import ContrastThresholds
 from model.inference.baselines import EventFilter, FilterConfig
 from tests.conftest import scene_and_trajectory
 

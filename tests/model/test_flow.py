@@ -6,8 +6,9 @@ import numpy as np
 import torch
 
 from esim_lite.core.stacking import StackConfig
-from model.archs.flow import classical_flow, stack_flows
-from model.data.dataset import DataConfig, ShardSamples, find_shards, index_samples
+from model.data.classical_flow import classical_flow, stack_flows
+from model.data.config import DataConfig
+from model.data.dataset import ShardSamples, find_shards, index_samples
 from model.training.flow_pretrain import pretrain_flow
 from model.training.train import train
 from tests.model.conftest import tiny_config

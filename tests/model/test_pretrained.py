@@ -7,6 +7,7 @@ import json
 import pytest
 import torch
 
+from model import checkpoint
 from model.inference.pretrained import (
     WEIGHTS,
     export,
@@ -15,7 +16,6 @@ from model.inference.pretrained import (
     sha256,
     shipped_checkpoint,
 )
-from model.training import checkpoint
 from tests.model.test_arch import inputs
 
 

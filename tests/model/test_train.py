@@ -16,10 +16,11 @@ import pytest
 import torch
 
 from esim_lite.core.stacking import StackConfig
+from model import checkpoint
 from model.cli import main
-from model.data.dataset import DataConfig, ShardSamples, find_shards, index_samples, split_sequences
-from model.training import checkpoint
-from model.training.config import OptimConfig
+from model.config import OptimConfig
+from model.data.config import DataConfig
+from model.data.dataset import ShardSamples, find_shards, index_samples, split_sequences
 from model.training.setup import epoch_batches
 from model.training.train import lr_lambda, train
 from tests.model.conftest import ROOT, tiny_config

@@ -9,9 +9,9 @@ import torch
 import torch.nn.functional as F
 
 from esim_lite.core.dataconf import to_yaml
+from model import checkpoint
 from model.archs.e2sri_arch import E2SRI, NetConfig
-from model.training import checkpoint
-from model.training.config import TrainConfig
+from model.config import TrainConfig
 from model.training.setup import Distributed
 from model.training.train import build_state
 from model.training.warm_start import warm_start

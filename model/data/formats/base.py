@@ -10,9 +10,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from esim_lite.core.contracts import READ_CHUNK_EVENTS
 from esim_lite.core.events import Events
 from esim_lite.core.frames import Frames
+
+READ_CHUNK_EVENTS = 1_000_000
+"""Events read at a time when streaming a recording (bounded memory at any length)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,12 +65,40 @@ class Recording:
         return Events.concatenate(list(self.events()), self.sensor_hw)
 
 
+# numpy dtype kinds an event field may be stored as: timestamps and coordinates integer or
+# float (float coordinates must hold whole numbers: checked per value), polarity also bool
+FIELD_KINDS = {"t": "iuf", "x": "iuf", "y": "iuf", "p": "biuf"}
+_KIND_WORDS = {"S": "byte strings", "U": "unicode strings", "b": "booleans",
+               "O": "Python objects, e.g. variable-length strings", "c": "complex numbers",
+               "M": "dates", "m": "time deltas", "V": "records or raw bytes"}
+
+
+def check_field_dtype(source: Path, field: str, dtype: np.dtype, role: str) -> None:
+    """Refuse a stored event field whose dtype cannot hold its ``role`` (``t``, ``x``, ``y``
+    or ``p``; see ``FIELD_KINDS``) before arithmetic on it fails with a numpy error.
+
+    Raises:
+        ValueError: naming ``source`` and ``field`` (as the file names it, e.g.
+            ``events/ts``), e.g. "events/ts holds byte strings (dtype |S8), expected
+            numbers (integer or float)".
+    """
+    dtype = np.dtype(dtype)
+    if dtype.kind not in FIELD_KINDS[role]:
+        expected = "numbers or booleans" if role == "p" else "numbers (integer or float)"
+        raise ValueError(f"{source}: {field} holds "
+                         f"{_KIND_WORDS.get(dtype.kind, 'non-numbers')} (dtype {dtype}), "
+                         f"expected {expected}")
+
+
 def checked_events(x, y, t_ns, p, hw, source: Path, offset: int = 0) -> Events:
     """Events from a decoder's arrays (``offset``: global index of the first), checked
     before any cast could hide a problem; errors name ``source`` and the event:
-    non-finite timestamps, non-integer coordinates or ones int16 cannot hold (the cast
-    would truncate or wrap them onto the sensor), polarities other than 0/1 or -1/1."""
+    arrays of a non-numeric dtype, non-finite timestamps, non-integer coordinates or ones
+    int16 cannot hold (the cast would truncate or wrap them onto the sensor), polarities
+    other than 0/1 or -1/1."""
     x, y, t_ns, p = (np.asarray(v) for v in (x, y, t_ns, p))
+    for role, v in (("x", x), ("y", y), ("t", t_ns), ("p", p)):
+        check_field_dtype(source, f"event field {role}", v.dtype, role)
     if t_ns.dtype.kind == "f":
         bad = np.flatnonzero(~np.isfinite(t_ns))
         if len(bad):

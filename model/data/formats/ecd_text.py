@@ -12,9 +12,14 @@ import cv2
 import numba
 import numpy as np
 
-from esim_lite.core.contracts import READ_CHUNK_EVENTS
 from esim_lite.core.events import Events
-from model.data.formats.base import Recording, checked_events, gray_image, sorted_frames
+from model.data.formats.base import (
+    READ_CHUNK_EVENTS,
+    Recording,
+    checked_events,
+    gray_image,
+    sorted_frames,
+)
 
 log = logging.getLogger(__name__)
 

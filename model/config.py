@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from model.archs.e2sri_arch import NetConfig
-from model.data.dataset import DataConfig
+from model.data.config import DataConfig
 
 
 @dataclass(frozen=True)

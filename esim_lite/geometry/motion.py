@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from esim_lite.camera import Intrinsics
-from esim_lite.pose import Pose, Twist
-from esim_lite.scene import intersect_plane
+from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.pose import Pose, Twist
+from esim_lite.geometry.scene import intersect_plane
 
 
 def plane_depth(intrinsics: Intrinsics, pose: Pose) -> np.ndarray:

@@ -27,8 +27,8 @@ import numba
 import numpy as np
 from scipy.ndimage import maximum_filter
 
-from esim_lite.camera import Intrinsics
-from esim_lite.pose import Pose, Twist
+from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.pose import Pose, Twist
 
 #: Proposed steps aim at this fraction of the allowed change, leaving room for error.
 SAFETY = 0.8

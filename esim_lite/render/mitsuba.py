@@ -2,7 +2,7 @@
 
 On the JIT variants (LLVM, CUDA) a camera is rendered as one wavefront of primary rays
 (:class:`_RayCast`): a ray through the centre of every cell of the ``s x s`` sub-pixel grid
-of :mod:`esim_lite.render_homography`, intersected with the plane by Mitsuba's rectangle
+of :mod:`esim_lite.render.homography`, intersected with the plane by Mitsuba's rectangle
 shape, turned into a surface interaction by it, and shaded by the plane's diffuse BSDF; a
 second kernel averages the ``s x s`` samples of every camera pixel. The plane is diffuse
 under a constant unit environment, so its radiance is its albedo in every direction:
@@ -36,9 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
-from esim_lite.camera import Intrinsics
-from esim_lite.pose import Pose
-from esim_lite.scene import PlanarScene
+from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.pose import Pose
+from esim_lite.geometry.scene import PlanarScene
 
 log = logging.getLogger(__name__)
 
@@ -52,10 +52,10 @@ _PROBE = """
 import sys
 sys.path.insert(0, {root!r})
 import numpy as np
-from esim_lite.camera import Intrinsics
-from esim_lite.pose import Pose
-from esim_lite.render_mitsuba import MitsubaRenderer
-from esim_lite.scene import PlanarScene
+from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.pose import Pose
+from esim_lite.render.mitsuba import MitsubaRenderer
+from esim_lite.geometry.scene import PlanarScene
 tex = np.linspace(0, 1, 16, dtype=np.float32).reshape(4, 4)
 cam = Intrinsics(8.0, 8.0, 3.5, 3.5, 8, 8)
 renderer = MitsubaRenderer({{"lr": PlanarScene(tex, 2.0, 2.0)}}, {{"lr": cam}}, {{"lr": 2}},

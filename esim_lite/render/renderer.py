@@ -7,10 +7,10 @@ from typing import Literal, Protocol
 
 import numpy as np
 
-from esim_lite.antialias import prefiltered
-from esim_lite.camera import Intrinsics
-from esim_lite.pose import Pose
-from esim_lite.scene import PlanarScene
+from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.pose import Pose
+from esim_lite.geometry.scene import PlanarScene
+from esim_lite.render.antialias import prefiltered
 
 
 class Renderer(Protocol):
@@ -55,18 +55,18 @@ def make_renderer(scene: PlanarScene, cameras: dict[str, Intrinsics], config: Re
 
     Args:
         texels_per_sample: per camera, the largest texel footprint of one sample over the
-            sequence; its texture is prefiltered for it (see :mod:`esim_lite.antialias`).
+            sequence; its texture is prefiltered for it (see :mod:`esim_lite.render.antialias`).
             Cameras not listed see the texture as is.
     """
     footprint = texels_per_sample or {}
     scenes = {name: prefiltered(scene, footprint.get(name, 0.0)) for name in cameras}
     supersample = {name: supersample_for(name, config) for name in cameras}
     if config.backend == "homography":
-        from esim_lite.render_homography import HomographyRenderer
+        from esim_lite.render.homography import HomographyRenderer
 
         return HomographyRenderer(scenes, cameras, supersample)
     if config.backend == "mitsuba":
-        from esim_lite.render_mitsuba import MitsubaRenderer
+        from esim_lite.render.mitsuba import MitsubaRenderer
 
         return MitsubaRenderer(scenes, cameras, supersample, variant=config.mitsuba_variant,
                                threads=config.threads)

@@ -1,4 +1,4 @@
-"""The event model of :mod:`esim_lite.event_kernel` in torch, for any torch device.
+"""The event model of :mod:`esim_lite.events.kernel` in torch, for any torch device.
 
 Same model, tie rule and float64 reference as the compiled kernel, and the same events bit
 for bit: every quantity is computed by the same IEEE float64 operations in the same order
@@ -19,9 +19,9 @@ pixel count.
 Two entry points: :func:`torch_step` (the reference signature of the other kernels, on
 tensors) and :class:`TorchEventCamera`, which keeps the sensor state on its device and turns
 a stack of log images into events, like ``esim_torch``'s ``EventSimulator_torch``. On CUDA
-with Triton installed the camera runs the stack through :mod:`esim_lite.event_triton`
+with Triton installed the camera runs the stack through :mod:`esim_lite.events.triton_kernel`
 instead (two launches per stack rather than some forty per sample), with the same events.
-torch is imported only by these modules; the rest of ``esim_lite`` does not need it.
+torch is imported only by these modules and :mod:`esim_lite.events.buffers`.
 """
 
 from __future__ import annotations
@@ -34,21 +34,14 @@ import numpy as np
 import torch
 
 from esim_lite.core.events import Events
-from esim_lite.event_kernel import NEVER, TIE_TOL
-from esim_lite.thresholds import ContrastThresholds
+from esim_lite.events.buffers import event_buffers
+from esim_lite.events.kernel import NEVER, TIE_TOL
+from esim_lite.events.thresholds import ContrastThresholds
 
-#: dtypes of an event list (x, y, t, p), as in :class:`esim_lite.core.events.Events`.
-EVENT_DTYPES = (torch.int16, torch.int16, torch.int64, torch.int8)
 #: Samples x pixels per Triton launch: bounds its (T - 1, P) count and offset buffers.
 _TRITON_CELLS = 2**26
 
 Backend = Literal["auto", "torch", "triton"]
-
-
-def event_buffers(n: int, device: torch.device
-                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Uninitialised (x, y, t, p) tensors of length ``n`` (``n = 0``: no events)."""
-    return tuple(torch.empty(n, dtype=dt, device=device) for dt in EVENT_DTYPES)
 
 
 def default_device() -> torch.device:
@@ -78,7 +71,7 @@ def torch_step(l0: torch.Tensor, l1: torch.Tensor, ref: torch.Tensor, last_t: to
         last_t: int64 (H, W) time of each pixel's last emitted event, contiguous (updated).
         c_pos, c_neg: float64 (H, W) per-pixel thresholds.
         t0, t1: sample times in ns, t1 > t0.
-        refractory_ns, tol: see :mod:`esim_lite.event_kernel`.
+        refractory_ns, tol: see :mod:`esim_lite.events.kernel`.
     All tensors on one device.
     Returns:
         (x, y, t, p): int16, int16, int64, int8 (N,) on that device, sorted by time, then
@@ -152,14 +145,14 @@ class TorchEventCamera:
 
     Feed it log-intensity images in time order with :meth:`simulate`; the first image ever
     fed sets the references and emits nothing. Gives the events of
-    :class:`esim_lite.simulator.EventSimulator` (noise off) bit for bit.
+    :class:`esim_lite.events.simulator.EventSimulator` (noise off) bit for bit.
 
     Args:
         thresholds: the sensor's contrast thresholds (per-pixel maps).
-        refractory_ns: see :class:`esim_lite.simulator.EventConfig`.
+        refractory_ns: see :class:`esim_lite.events.simulator.EventConfig`.
         device: where state and computation live (default: :func:`default_device`).
         backend: ``torch`` (:func:`torch_step` per sample), ``triton``
-            (:func:`esim_lite.event_triton.sweep` per stack; CUDA, or CPU in Triton's
+            (:func:`esim_lite.events.triton_kernel.sweep` per stack; CUDA, or CPU in Triton's
             interpreter) or ``auto`` (:func:`resolve_backend`).
     """
 
@@ -207,7 +200,7 @@ class TorchEventCamera:
             start = 1
         parts = []
         if self.backend == "triton":
-            from esim_lite.event_triton import sweep
+            from esim_lite.events.triton_kernel import sweep
 
             per_launch = max(1, _TRITON_CELLS // logs[0].numel())
             for a in range(start, len(times), per_launch):
@@ -236,7 +229,7 @@ class TorchEventCamera:
 
 class TorchKernel:
     """Adapts :func:`torch_step` to the numpy signature of the other kernels (for
-    :class:`esim_lite.simulator.EventSimulator`): on the CPU the state arrays are shared with
+    :class:`esim_lite.events.simulator.EventSimulator`): on the CPU the state arrays are shared with
     torch, elsewhere they are copied to the device and back at every step."""
 
     in_time_order = True

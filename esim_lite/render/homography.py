@@ -11,9 +11,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from esim_lite.camera import Intrinsics
-from esim_lite.pose import Pose
-from esim_lite.scene import PlanarScene
+from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.pose import Pose
+from esim_lite.geometry.scene import PlanarScene
 
 
 class HomographyRenderer:

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from esim_lite.camera import Intrinsics
-from esim_lite.pose import Pose
+from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.pose import Pose
 
 
 def intersect_plane(pose: Pose, rays_c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -16,9 +16,9 @@ from collections.abc import Iterable
 import cv2
 import numpy as np
 
-from esim_lite.camera import Intrinsics
-from esim_lite.pose import Pose
-from esim_lite.scene import PlanarScene
+from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.pose import Pose
+from esim_lite.geometry.scene import PlanarScene
 
 
 def texels_per_sample(scene: PlanarScene, camera: Intrinsics, supersample: int,

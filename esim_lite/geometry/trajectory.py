@@ -23,9 +23,9 @@ from functools import cached_property
 import numba
 import numpy as np
 
-from esim_lite.camera import Intrinsics
-from esim_lite.pose import Pose, Twist, so3_exp, so3_log
-from esim_lite.scene import intersect_plane
+from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.pose import Pose, Twist, so3_exp, so3_log
+from esim_lite.geometry.scene import intersect_plane
 
 #: Camera looking straight down at the plane, image up = world +Y (texture upright).
 LOOK_DOWN = np.array([[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]])

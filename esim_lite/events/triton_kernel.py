@@ -1,6 +1,6 @@
 """The event model as one Triton kernel over a whole stack of samples (for GPUs).
 
-:func:`esim_lite.event_torch.torch_step` launches some forty small kernels per sample; at
+:func:`esim_lite.events.torch_kernel.torch_step` launches some forty small kernels per sample; at
 128 x 128 pixels a GPU spends that step waiting on launches. Here each program owns a block
 of pixels and walks them through all T samples in registers, the way ``esim_torch``'s CUDA
 kernel does, so a stack costs two launches however long it is:
@@ -10,7 +10,7 @@ kernel does, so a stack costs two launches however long it is:
 2. ``write``: the same walk again, writing each event at its offset and the final state.
 
 The list comes out step-major, pixel-major within a step, levels in order within a pixel, so
-one stable sort by time gives the order of :class:`esim_lite.simulator.EventSimulator` (steps
+one stable sort by time gives the order of :class:`esim_lite.events.simulator.EventSimulator` (steps
 concatenated, each by time, then row, column and emission).
 
 Bit-exactness with the compiled kernel rests on the same float64 operations in the same
@@ -31,7 +31,7 @@ import torch
 import triton
 import triton.language as tl
 
-from esim_lite.event_torch import event_buffers
+from esim_lite.events.buffers import event_buffers
 
 BLOCK = 128
 #: Compile options of the CUDA kernel: no multiply-add contraction (two roundings stay two).
@@ -125,7 +125,7 @@ def sweep(logs: torch.Tensor, times: torch.Tensor, ref: torch.Tensor, last_t: to
         logs: float32 (T, H, W) log intensity, contiguous; T >= 2.
         times: int64 (T,) sample times in ns, increasing.
         ref, last_t, c_pos, c_neg: (H, W) sensor state and thresholds as in
-            :func:`esim_lite.event_torch.torch_step`, contiguous.
+            :func:`esim_lite.events.torch_kernel.torch_step`, contiguous.
     All on one device: CUDA (compiled) or the CPU (Triton's interpreter; slow, for tests).
     Returns:
         (x, y, t, p) int16, int16, int64, int8 (N,) in the simulator's order.

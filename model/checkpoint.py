@@ -1,5 +1,6 @@
-"""Checkpoints that rebuild themselves: model, optimiser, scheduler, progress, RNG states and
-the resolved config, written atomically (temporary name, then rename)."""
+"""Checkpoints that rebuild themselves, for training and inference alike: model, optimiser,
+scheduler, progress, RNG states and the resolved config, written atomically (temporary name,
+then rename)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,11 @@ import torch
 from esim_lite.core.atomic import atomic_path
 from esim_lite.core.dataconf import from_mapping, load_yaml_text, to_mapping
 from model.archs.e2sri_arch import E2SRI, NetConfig
-from model.training.config import TrainConfig
+from model.config import TrainConfig
+
+TRAINED_SENSOR_HW = (128, 128)
+"""(H, W) of the paper's simulated event camera: what a checkpoint that does not record its
+training sensor was trained on."""
 
 
 def rng_state() -> dict[str, Any]:

@@ -1,4 +1,4 @@
-"""Two plain implementations of the event model of :mod:`esim_lite.event_kernel`.
+"""Two plain implementations of the event model of :mod:`esim_lite.events.kernel`.
 
 They exist as test oracles and benchmark baselines, written independently of the compiled
 kernel: ``python_step`` is the model read aloud (one pixel, one level at a time);

@@ -8,10 +8,10 @@ from typing import Literal
 import numpy as np
 
 from esim_lite.core.events import Events
-from esim_lite.event_kernel import NEVER, TIE_TOL, esim_step_sorted
-from esim_lite.event_reference import numpy_step, python_step
-from esim_lite.noise import NoiseConfig, NoiseModel
-from esim_lite.thresholds import ContrastThresholds, ThresholdConfig
+from esim_lite.events.kernel import NEVER, TIE_TOL, esim_step_sorted
+from esim_lite.events.noise import NoiseConfig, NoiseModel
+from esim_lite.events.reference import numpy_step, python_step
+from esim_lite.events.thresholds import ContrastThresholds, ThresholdConfig
 
 KernelName = Literal["numba", "numpy", "python", "torch"]
 
@@ -57,7 +57,7 @@ class _NumbaKernel:
 
 
 def _torch_kernel():
-    from esim_lite.event_torch import TorchKernel  # torch only when this kernel is chosen
+    from esim_lite.events.torch_kernel import TorchKernel  # torch only when this kernel is chosen
 
     return TorchKernel()
 
@@ -78,7 +78,7 @@ class EventSimulator:
         log_eps, refractory_ns: see :class:`EventConfig`.
         noise: a :class:`NoiseModel`, or None for a noise-free sensor.
         kernel: ``numba`` (fast), the ``numpy``/``python`` reference implementations, or
-            ``torch`` (:mod:`esim_lite.event_torch`, on CUDA when torch sees a GPU, else on
+            ``torch`` (:mod:`esim_lite.events.torch_kernel`, on CUDA when torch sees a GPU, else on
             the CPU; imported only when asked for).
     """
 
