@@ -11,7 +11,8 @@
 - ``evreal``: a ``<shard>_<seq>/`` folder of EVREAL's ``.npy`` files: ``events_ts`` float64
   seconds, ``events_xy`` int16 [N, 2], ``events_p`` uint8 0/1, ``images`` uint8
   [T, H, W, 1], ``images_ts`` float64 [T, 1], ``image_event_indices`` int64 [T, 1]
-  (``searchsorted(events_ts, images_ts, 'right') - 1``) and ``metadata.json`` with
+  (``clip(searchsorted(events_ts, images_ts, 'right') - 1, 0, N - 1)``, EVREAL's converters'
+  rule) and ``metadata.json`` with
   ``sensor_resolution`` [H, W]; HR frames as ``images_hr_x2.npy``; thresholds, intrinsics and
   poses in ``metadata.json``.
 - ``txt``: a ``<shard>_<seq>/`` folder in the Event Camera Dataset's layout: ``events.txt``
@@ -43,6 +44,15 @@ FORMATS = ("event_utils", "evreal", "txt")
 def to_uint8(intensity: np.ndarray) -> np.ndarray:
     """uint8 frames from linear intensity in [0, 1] (clipped, rounded)."""
     return np.clip(np.round(np.asarray(intensity, np.float64) * 255.0), 0, 255).astype(np.uint8)
+
+
+def evreal_event_indices(events_ts: np.ndarray, images_ts: np.ndarray) -> np.ndarray:
+    """int64[T]: for each frame time, the index of the last event at or before it, clipped
+    to [0, N - 1] as EVREAL's converters (tools/bag_to_npy.py) clip it: its loader refuses
+    a folder with any index outside that range, e.g. -1 for a frame before the first event.
+    Both times in seconds, ``events_ts`` sorted (no events: all 0)."""
+    idx = np.searchsorted(events_ts, images_ts, "right") - 1
+    return np.clip(idx, 0, max(len(events_ts) - 1, 0)).astype(np.int64)
 
 
 def _metadata(rec: SequenceRecord) -> dict:
@@ -102,8 +112,7 @@ def _write_evreal(rec: SequenceRecord, target: Path) -> Path:
         img_ts = lr.t_ns * 1e-9
         np.save(d / "images.npy", to_uint8(lr.intensity)[..., None])
         np.save(d / "images_ts.npy", img_ts[:, None].astype(np.float64))
-        idx = np.searchsorted(ts, img_ts, "right") - 1
-        np.save(d / "image_event_indices.npy", idx[:, None].astype(np.int64))
+        np.save(d / "image_event_indices.npy", evreal_event_indices(ts, img_ts)[:, None])
         for camera, frames in rec.frames.items():
             if camera != "lr":
                 np.save(d / f"images_{camera}.npy", to_uint8(frames.intensity)[..., None])

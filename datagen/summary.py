@@ -16,6 +16,9 @@ def describe_shard(path: str | Path) -> str:
         seed = "?" if reader.seed is None else reader.seed
         lines.append(f"{path}: {len(names)} sequence(s), {size / 1e6:.1f} MB, schema "
                      f"{reader.schema_version}, seed {seed}")
+        versions = reader.versions
+        lines.append("  versions: " + (", ".join(f"{k} {v}" for k, v in versions.items())
+                                       if versions is not None else "not recorded"))
         for name in names:
             s = reader.summary(name)
             cams = ", ".join(f"{c} {w}x{h}" for c, (h, w) in s.frame_hw.items())

@@ -94,11 +94,34 @@ def test_evreal_folder_has_its_files_dtypes_and_index_rule(shard, record, tmp_pa
     np.testing.assert_array_equal(load["images"][..., 0], to_uint8(lr.intensity))
     assert load["images_ts"].shape == (t, 1) and load["image_event_indices"].shape == (t, 1)
     np.testing.assert_array_equal(load["images_ts"][:, 0], lr.t_ns * 1e-9)
-    expected = np.searchsorted(ev.t_ns * 1e-9, lr.t_ns * 1e-9, "right") - 1
-    np.testing.assert_array_equal(load["image_event_indices"][:, 0], expected)
+    assert load["image_event_indices"].dtype == np.int64
     meta = json.loads((folder / "metadata.json").read_text())
     assert meta["sensor_resolution"] == [h, w]
     assert np.load(folder / "images_hr_x2.npy").shape == (t, 2 * h, 2 * w, 1)
+
+
+def test_evreal_event_indices_pass_evreals_loader_and_match_its_converters(shard, record,
+                                                                          tmp_path):
+    """EVREAL's MemMapDataset (dataset.py, 'between_frames') cuts the events at
+    image_event_indices and refuses any index outside [0, N - 1] ("Event indices -1,2999 out
+    of bounds"); its converters (tools/bag_to_npy.py) write, for each frame, the last event
+    at or before the frame, clipped: clip(searchsorted(ts, t, 'right') - 1, 0, N - 1)."""
+    (folder,) = export([shard], "evreal", tmp_path, "seq_000000")
+    ts = np.load(folder / "events_ts.npy")
+    img_ts = np.load(folder / "images_ts.npy")[:, 0]
+    idx = np.load(folder / "image_event_indices.npy")[:, 0]
+    n = len(ts)
+    assert img_ts[0] < ts[0], "the fixture must have a frame before the first event"
+    assert idx.min() >= 0 and idx.max() <= n - 1
+    assert np.all(np.diff(idx) >= 0)
+    for k, t in enumerate(img_ts):
+        at_or_before = np.flatnonzero(ts <= t)
+        assert idx[k] == (at_or_before[-1] if len(at_or_before) else 0), k
+    # the loader's own check, on the [start, end) pairs it builds from the indices
+    start = 0
+    for end in idx:
+        assert start >= 0 and end <= n, (start, end)
+        start = end
 
 
 def test_ecd_text_folder_reads_back_and_has_calib_and_groundtruth(shard, record, tmp_path):

@@ -238,6 +238,49 @@ def test_inspect_and_preview(tmp_path, capsys):
     assert img.ndim == 3 and img.shape[0] > 100 and img.std() > 10
 
 
+def test_shards_record_the_library_versions_and_inspect_shows_them(tmp_path, capsys):
+    """Bytes are reproducible per software stack only, so each shard names its stack;
+    a shard from before that still reads and inspects."""
+    import importlib.metadata as md
+    import json
+    import shutil
+
+    import cv2
+
+    gen.generate(tiny(), tmp_path, n_seq=1, seed=0, show_progress=False)
+    path = tmp_path / "shard_00000.h5"
+    running = {"numpy": np.__version__, "opencv": cv2.__version__,
+               "mitsuba": md.version("mitsuba"), "drjit": md.version("drjit"),
+               "numba": md.version("numba"), "h5py": h5py.__version__,
+               "hdf5": h5py.version.hdf5_version, "e2sr": md.version("e2sr")}
+    with h5py.File(path, "r") as f:
+        assert json.loads(f.attrs["versions"]) == running
+    with ShardReader(path) as r:
+        assert r.versions == running
+    assert main(["inspect", str(path)]) == 0
+    text = capsys.readouterr().out
+    assert "versions: " + ", ".join(f"{k} {v}" for k, v in running.items()) in text
+    old = tmp_path / "old" / "shard_00000.h5"
+    old.parent.mkdir()
+    shutil.copy(path, old)
+    with h5py.File(old, "a") as f:
+        del f.attrs["versions"]
+    with ShardReader(old) as r:
+        assert r.versions is None and len(r.read("seq_000000").events) > 0
+    assert main(["inspect", str(old)]) == 0
+    assert "versions: not recorded" in capsys.readouterr().out
+
+
+def test_recording_versions_leaves_mitsuba_unimported():
+    """Version lookup must not import Mitsuba (which would also be the moment a variant
+    gets chosen): a fresh interpreter, so no other test has imported it first."""
+    code = ("import sys; from datagen.shard import library_versions; library_versions(); "
+            "print('mitsuba' in sys.modules, 'drjit' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                         text=True, check=True).stdout
+    assert out.split() == ["False", "False"]
+
+
 def test_worker_count_is_not_part_of_the_dataset_identity(tmp_path):
     """A dataset started with one --workers value resumes with another."""
     gen.generate(tiny(), tmp_path, n_seq=4, seed=2, workers=2, show_progress=False)

@@ -10,7 +10,16 @@ import h5py
 import numpy as np
 
 from esim_lite.core.events import Events
-from model.data.formats.base import Recording, checked_events, gray_image, sorted_frames
+from model.data.formats.base import (
+    Recording,
+    check_field_dtype,
+    checked_events,
+    gray_image,
+    sorted_frames,
+)
+
+# event_utils' dataset names and the event field each holds
+FIELDS = {"xs": "x", "ys": "y", "ts": "t", "ps": "p"}
 
 
 def open_event_hdf5(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
@@ -22,6 +31,8 @@ def open_event_hdf5(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
         if any(f[f"events/{k}"].shape[0] != n for k in ("xs", "ys", "ps")):
             raise ValueError(f"{path}: events/xs, ys, ts, ps have different lengths "
                              f"(truncated file?)")
+        for name, role in FIELDS.items():
+            check_field_dtype(path, f"events/{name}", f[f"events/{name}"].dtype, role)
         hw = sensor_hw or _sensor_of(f, path)
         images, times = [], []
         if "images" in f:

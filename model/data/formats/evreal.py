@@ -13,7 +13,13 @@ from pathlib import Path
 import numpy as np
 
 from esim_lite.core.events import Events
-from model.data.formats.base import Recording, checked_events, gray_image, sorted_frames
+from model.data.formats.base import (
+    Recording,
+    check_field_dtype,
+    checked_events,
+    gray_image,
+    sorted_frames,
+)
 
 FILES = ("events_ts.npy", "events_xy.npy", "events_p.npy")
 
@@ -48,6 +54,9 @@ def open_evreal(folder: Path, sensor_hw: tuple[int, int] | None) -> Recording:
     if xy.ndim != 2 or xy.shape != (n, 2) or p.reshape(-1).shape[0] != n:
         raise ValueError(f"{folder}: events_ts {ts.shape}, events_xy {xy.shape} and events_p "
                          f"{p.shape} do not describe the same {n} events ([N], [N, 2], [N])")
+    for name, arr, role in (("events_ts.npy", ts, "t"), ("events_xy.npy", xy, "x"),
+                            ("events_p.npy", p, "p")):
+        check_field_dtype(folder, name, arr.dtype, role)
     frames = None
     if (folder / "images.npy").is_file() and (folder / "images_ts.npy").is_file():
         images = np.load(folder / "images.npy")

@@ -8,7 +8,8 @@ from pathlib import Path
 
 from datagen.shard import ShardReader
 from esim_lite.core.events import Events
-from model.data.formats.base import Recording
+from model.data.formats.base import Recording, check_field_dtype
+from model.data.formats.event_utils import FIELDS
 
 
 def open_shard(path: Path, sequence: str | None, sensor_hw: tuple[int, int] | None = None
@@ -19,6 +20,8 @@ def open_shard(path: Path, sequence: str | None, sensor_hw: tuple[int, int] | No
         name = sequence or names[0]
         if name not in names:
             raise ValueError(f"{path}: no sequence {name!r} (it has {', '.join(names)})")
+        for k, dtype in reader.event_dtypes(name).items():
+            check_field_dtype(path, f"{name}/events/{k}", dtype, FIELDS[k])
         hw = sensor_hw or reader.sensor_hw(name)
         frames = reader.frames(name, "lr")
         total = reader.num_events(name)
