@@ -38,7 +38,7 @@ class FolderBusyError(ValueError):
     """Another live process writes to the folder (the message names it)."""
 
 
-def _alive(pid: int) -> bool:
+def alive(pid: int) -> bool:
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -54,7 +54,7 @@ def stale_temporary(path: Path) -> bool:
         pid = int(path.name.rsplit("-", 1)[1])
     except (IndexError, ValueError):
         return False
-    return pid != os.getpid() and not _alive(pid)
+    return pid != os.getpid() and not alive(pid)
 
 
 def _owners(state: Path) -> list[dict]:
@@ -64,7 +64,7 @@ def _owners(state: Path) -> list[dict]:
             info = json.loads(f.read_text())
         except (OSError, json.JSONDecodeError):
             continue
-        if _alive(int(info.get("pid", -1))):
+        if alive(int(info.get("pid", -1))):
             out.append(info)
     return out
 

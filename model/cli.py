@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -26,6 +28,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override a config value, e.g. optim.batch_size=4")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    p.add_argument("--overwrite", action="store_true",
+                   help="start afresh in an OUT that holds another run, removing its files "
+                        "(without --resume or --overwrite such a folder is refused)")
     p.add_argument("--no-progress", action="store_true")
     p.add_argument("-v", "--verbose", action="store_true")
     return p
@@ -37,17 +42,18 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(levelname)s %(name)s: %(message)s")
     try:
         config = load_config(args.config, args.set)
-        if config.task == "flow":
-            from model.training.flow_pretrain import pretrain_flow
+        with _claim_out(args, config.run.seed):
+            if config.task == "flow":
+                from model.training.flow_pretrain import pretrain_flow
 
-            result = pretrain_flow(config, args.data, args.out, not args.no_progress)
-            print(f"flow pre-training: {result['step']} steps; held-out EPE (px) "
-                  f"{result['val']}; checkpoint {args.out}/flow_last.pt")
-            return 0
-        from model.training.train import psnr_summary, train
+                result = pretrain_flow(config, args.data, args.out, not args.no_progress)
+                print(f"flow pre-training: {result['step']} steps; held-out EPE (px) "
+                      f"{result['val']}; checkpoint {args.out}/flow_last.pt")
+                return 0
+            from model.training.train import psnr_summary, train
 
-        result = train(config, args.data, args.out, resume=args.resume,
-                       show_progress=not args.no_progress)
+            result = train(config, args.data, args.out, resume=args.resume,
+                           show_progress=not args.no_progress)
     except (ConfigError, FileNotFoundError, ValueError, FloatingPointError) as exc:
         print(f"train: error: {exc}", file=sys.stderr)
         return 2
@@ -60,6 +66,18 @@ def main(argv: list[str] | None = None) -> int:
 
 if __name__ == "__main__":
     sys.exit(main())
+
+
+def _claim_out(args: argparse.Namespace, seed: int):
+    """The run folder, held for this run (rank 0 only under torchrun: it alone writes it)."""
+    if int(os.environ.get("RANK", "0")) != 0:
+        if args.resume and args.overwrite:
+            raise ValueError("--resume continues the run in --out, --overwrite starts afresh "
+                             "there: give one of them")
+        return contextlib.nullcontext()
+    from model.training.run_folder import RunFolder
+
+    return RunFolder(args.out, seed, resume=args.resume, overwrite=args.overwrite)
 
 
 def _check_out_folder(out: str) -> None:
