@@ -52,9 +52,9 @@ class RunConfig:
         val_batches: validation batches per evaluation (None = the whole held-out split);
             the frames are spread evenly over all held-out sequences.
         amp: mixed precision on GPUs (bfloat16 where supported, else float16 with a scaler).
-        cpu_amp: bfloat16 autocast on the CPU. Off by default: on the 2-core AVX512-BF16
-            machine this was developed on it made E2SRI's training steps slower, not faster
-            (bench/bench_train.py measures it).
+        cpu_amp: bfloat16 autocast on the CPU. Off by default: on CPUs without AMX it can
+            make E2SRI's training steps slower, not faster (bench/bench_train.py measures
+            it on yours).
         channels_last: NHWC memory format (GPUs and CPUs; faster for these convs on both).
         threads: intra-op CPU threads (None: torch's default, one per core).
         first_pass: a trained main-model checkpoint producing the central input when

@@ -8,7 +8,7 @@ second kernel averages the ``s x s`` samples of every camera pixel. The plane is
 under a constant unit environment, so its radiance is its albedo in every direction:
 exactly what Mitsuba's ``direct`` integrator returns with one BSDF sample (the scalar path
 below), without the sampler, film, emitter query and scattered accumulation around it
-(that path took 6.5x the time per 128x128 frame). Both kernels are recorded once with
+(docs/benchmarks.md compares the two paths' time per frame). Both kernels are recorded once with
 ``drjit.freeze`` and replayed for every pose. Noise-free and bit-exact by construction:
 - the texture is loaded raw (linear values, no sRGB decoding), bilinear, ``clamp`` wrap;
 - each ray is one lane and each pixel's sum one lane of the second kernel (float64, a
@@ -249,7 +249,7 @@ class _RayCast:
         ray = mi.Ray3f(mi.Point3f(m[9], m[10], m[11]), dr.normalize(direction))
         # the scene's only shape is the plane: its own intersection routine, rather than
         # Scene.ray_intersect_preliminary's walk of an Embree hierarchy of one primitive
-        # (hits equal to float32 rounding; that kernel took 1.8x as long here)
+        # (hits equal to float32 rounding, but a slower kernel)
         (plane,) = scene.shapes()
         hit = plane.ray_intersect_preliminary(ray)
         si = hit.compute_surface_interaction(ray, mi.RayFlags.UV)

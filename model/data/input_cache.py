@@ -1,8 +1,8 @@
 """Precomputed network inputs: SBN stacks, classical flow and frames, once per training set.
 
 Building a sample from a shard (read and decompress events, paint SBN stacks, run DIS twice
-or more, read and decompress the frames) costs tens of milliseconds of CPU: on a 2-core
-machine the data workers would take about half the cores from the network. The cache does
+or more, read and decompress the frames) costs CPU time per sample that data workers would
+take from the network on a machine with few cores (bench/bench_train.py measures it). The cache does
 that work once, in parallel, and stores whole-frame arrays that training reads through
 memory maps and only crops and flips.
 
