@@ -30,10 +30,11 @@ from pathlib import Path
 import torch
 from torch.utils.data import DataLoader
 
+from datagen.shard import find_shards
 from esim_lite.core.dataconf import load_yaml
 from model.archs.e2sri_arch import E2SRI, count_parameters
 from model.config import TrainConfig
-from model.data.dataset import ShardSamples, find_shards, index_samples
+from model.data.dataset import ShardSamples, index_samples
 from model.losses.similarity import SimilarityLoss
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -3,37 +3,75 @@
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import sys
+from collections.abc import Mapping
 from pathlib import Path
 
 from datagen.config import DatagenConfig
-from esim_lite.core.dataconf import ConfigError, apply_overrides, from_mapping, load_yaml
+from datagen.shard import find_shards
+from esim_lite.core.dataconf import ConfigError, load_config
 from esim_lite.geometry.camera import SCALES
 
 log = logging.getLogger("datagen")
 
-
-def load_config(path: str | None, overrides: list[str]) -> DatagenConfig:
-    """The YAML at ``path`` (or the built-in defaults) with ``key=value`` overrides."""
-    if path:
-        return load_yaml(DatagenConfig, path, overrides)
-    return from_mapping(DatagenConfig, apply_overrides({}, overrides), source="--set")
+AUTO = "auto"
 
 
-def shard_paths(target: str) -> list[Path]:
-    """A shard file, or every ``shard_*.h5`` in a folder."""
-    path = Path(target)
-    if path.is_dir():
-        found = sorted(path.glob("shard_*.h5"))
-        if not found:
-            raise FileNotFoundError(f"{path}: no shard_*.h5 files in this folder")
-        return found
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file or folder")
-    return [path]
+def _index_or_auto(text: str) -> int | str:
+    if text == AUTO:
+        return AUTO
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer or 'auto', got {text!r}") from None
+
+
+def _env_int(environ: Mapping[str, str], name: str, flag: str) -> int:
+    raw = environ.get(name)
+    if raw is None:
+        raise ValueError(f"{flag} auto reads {name}, which is not set (run inside a SLURM job "
+                         f"array, e.g. sbatch --array=0-7, or give a number)")
+    try:
+        return int(raw)
+    except ValueError:
+        raise ValueError(f"{flag} auto reads {name}, which is {raw!r}, not an integer") from None
+
+
+def array_job(shard_index: int | str, num_shards: int | str,
+              environ: Mapping[str, str] = os.environ) -> tuple[int, int]:
+    """``(shard_index, num_shards)`` with ``auto`` taken from the SLURM job array.
+
+    ``auto`` index: ``SLURM_ARRAY_TASK_ID`` minus ``SLURM_ARRAY_TASK_MIN`` when that is set
+    (so ``--array=1-8`` gives 0..7); ``auto`` count: ``SLURM_ARRAY_TASK_COUNT``. The array
+    must be one contiguous range (no step, no list), else some shards would never be written.
+
+    Raises:
+        ValueError: a variable ``auto`` needs is missing or not an integer (named), the array
+            is not a contiguous range, or the index falls outside ``[0, num_shards)``.
+    """
+    if num_shards == AUTO:
+        num_shards = _env_int(environ, "SLURM_ARRAY_TASK_COUNT", "--num-shards")
+        if "SLURM_ARRAY_TASK_MIN" in environ and "SLURM_ARRAY_TASK_MAX" in environ:
+            low = _env_int(environ, "SLURM_ARRAY_TASK_MIN", "--num-shards")
+            high = _env_int(environ, "SLURM_ARRAY_TASK_MAX", "--num-shards")
+            if high - low + 1 != num_shards:
+                raise ValueError(
+                    f"--num-shards auto: the job array {low}-{high} (SLURM_ARRAY_TASK_MIN, "
+                    f"SLURM_ARRAY_TASK_MAX) has {num_shards} tasks (SLURM_ARRAY_TASK_COUNT), "
+                    f"not one per index; submit a contiguous range such as "
+                    f"--array=0-{num_shards - 1}")
+    if shard_index == AUTO:
+        task = _env_int(environ, "SLURM_ARRAY_TASK_ID", "--shard-index")
+        low = _env_int(environ, "SLURM_ARRAY_TASK_MIN", "--shard-index") \
+            if "SLURM_ARRAY_TASK_MIN" in environ else 0
+        shard_index = task - low
+        if not 0 <= shard_index < int(num_shards):
+            raise ValueError(f"--shard-index auto: SLURM_ARRAY_TASK_ID {task} minus "
+                             f"SLURM_ARRAY_TASK_MIN {low} is {shard_index}, outside [0, "
+                             f"{num_shards}) of --num-shards")
+    return int(shard_index), int(num_shards)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -57,10 +95,12 @@ def build_parser() -> argparse.ArgumentParser:
                      help="use only the train or test part of every texture source")
     gen.add_argument("--workers", type=int, default=os.cpu_count() or 1,
                      help="worker processes (default: all cores)")
-    gen.add_argument("--shard-index", type=int, default=0,
-                     help="this job's index in a job array (default 0)")
-    gen.add_argument("--num-shards", type=int, default=1,
-                     help="jobs splitting the dataset; job i writes shards k with k %% n == i")
+    gen.add_argument("--shard-index", type=_index_or_auto, default=0,
+                     help="this job's index in a job array (default 0); auto: "
+                          "SLURM_ARRAY_TASK_ID minus SLURM_ARRAY_TASK_MIN")
+    gen.add_argument("--num-shards", type=_index_or_auto, default=1,
+                     help="jobs splitting the dataset; job i writes shards k with k %% n == i "
+                          "(default 1); auto: SLURM_ARRAY_TASK_COUNT")
     gen.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     ins = sub.add_parser("inspect", help="summarise shards")
@@ -79,12 +119,9 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _generate(args: argparse.Namespace) -> int:
-    from datagen.generate import generate
-
-    if args.workers < 1:
-        raise ValueError(f"--workers must be at least 1, got {args.workers}")
-    overrides = list(args.set)
+def _flag_values(args: argparse.Namespace) -> dict[str, object]:
+    """The config values the generate flags set, as dotted keys to typed values."""
+    values: dict[str, object] = {}
     if args.scale:
         try:
             scales = [int(s) for s in args.scale.split(",")]
@@ -93,16 +130,24 @@ def _generate(args: argparse.Namespace) -> int:
         if not scales or any(s not in SCALES for s in scales):
             raise ValueError(f"--scale must be {', '.join(map(str, SCALES))} or several joined "
                              f"by commas (e.g. 2,4); got {args.scale!r}")
-        overrides.append(f"simulation.camera.scales=[{','.join(map(str, scales))}]")
+        values["simulation.camera.scales"] = scales
     if args.textures:
         sources = [str(t) for t in args.textures]
-        value = sources[0] if len(sources) == 1 else sources
-        overrides.append(f"textures.source={json.dumps(value)}")
+        values["textures.source"] = sources[0] if len(sources) == 1 else sources
     if args.texture_split:
-        overrides.append(f"textures.split={args.texture_split}")
-    config = load_config(args.config, overrides)
+        values["textures.split"] = args.texture_split
+    return values
+
+
+def _generate(args: argparse.Namespace) -> int:
+    from datagen.generate import generate
+
+    if args.workers < 1:
+        raise ValueError(f"--workers must be at least 1, got {args.workers}")
+    shard_index, num_shards = array_job(args.shard_index, args.num_shards)
+    config = load_config(DatagenConfig, args.config, args.set, _flag_values(args))
     summary = generate(config, args.out, args.n_seq, seed=args.seed, workers=args.workers,
-                       shard_index=args.shard_index, num_shards=args.num_shards,
+                       shard_index=shard_index, num_shards=num_shards,
                        show_progress=not args.no_progress)
     print(summary.line())
     print(f"shards in {Path(args.out).resolve()}")
@@ -116,7 +161,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "generate":
             return _generate(args)
-        paths = shard_paths(args.target)
+        paths = find_shards(args.target)
         if args.command == "inspect":
             from datagen.summary import describe_shard
 

@@ -31,6 +31,7 @@ from datagen.lock import FolderLock, stale_temporary
 from datagen.sampling import sample_sequence
 from datagen.shard import ShardReader, ShardWriter
 from datagen.textures import TextureSampler
+from esim_lite.core.atomic import atomic_path
 from esim_lite.core.dataconf import to_yaml
 from esim_lite.render.renderer import make_renderer
 from esim_lite.sequence import sample_footprints, simulate
@@ -126,27 +127,24 @@ def write_shard(plan: ShardPlan, config: DatagenConfig, seed: int, progress=None
     config_yaml = to_yaml(config)
     sim = _with_threads(config, render_threads).simulation
     textures = textures or TextureSampler(config.textures)
-    tmp = plan.path.with_name(f"{plan.path.name}.tmp-{os.getpid()}")
-    writer = ShardWriter(tmp, config_yaml, seed, list(plan.sequences))
     n_events = n_frames = 0
-    try:
-        for index in plan.sequences:
-            e, f = _write_sequence(writer, sim, textures, seed, index, progress)
-            n_events, n_frames = n_events + e, n_frames + f
-            if progress:
-                progress(None)
-        writer.finish()
-        os.replace(tmp, plan.path)
+    try:  # the temporary name carries our pid: see datagen.lock.stale_temporary
+        with atomic_path(plan.path, f".tmp-{os.getpid()}", unique=False) as tmp:
+            writer = ShardWriter(tmp, config_yaml, seed, list(plan.sequences))
+            try:
+                for index in plan.sequences:
+                    e, f = _write_sequence(writer, sim, textures, seed, index, progress)
+                    n_events, n_frames = n_events + e, n_frames + f
+                    if progress:
+                        progress(None)
+                writer.finish()
+            except BaseException:
+                writer.close()  # before atomic_path removes the file
+                raise
     except OSError as exc:
-        writer.close()
-        tmp.unlink(missing_ok=True)
         if exc.errno == errno.ENOSPC or "No space left" in str(exc) or "errno = 28" in str(exc):
             raise DiskFullError(errno.ENOSPC, f"{plan.path}: disk full while writing "
                                 f"the shard (partial file removed)") from exc
-        raise
-    except BaseException:
-        writer.close()
-        tmp.unlink(missing_ok=True)
         raise
     return ShardResult(plan.index, plan.count, n_events, n_frames, plan.path.stat().st_size,
                        time.perf_counter() - start)

@@ -70,6 +70,25 @@ def sequence_name(index: int) -> str:
     return f"seq_{index:06d}"
 
 
+def find_shards(target: str | Path) -> list[Path]:
+    """``target`` itself if it is a file, else every ``shard_*.h5`` in the folder, sorted.
+
+    Raises:
+        FileNotFoundError: ``target`` does not exist, or is a folder without shards.
+    """
+    path = Path(target)
+    if path.is_dir():
+        found = sorted(path.glob("shard_*.h5"))
+        if not found:
+            raise FileNotFoundError(f"{path}: no shard_*.h5 files in this folder (make them "
+                                    f"with datagen generate)")
+        return found
+    if not path.exists():
+        raise FileNotFoundError(f"{path}: no such file or folder, so no shard_*.h5 files to "
+                                f"read (make them with datagen generate)")
+    return [path]
+
+
 def library_versions() -> dict[str, str]:
     """Versions of the libraries whose arithmetic shapes a shard's bytes (a dataset is
     bit-identical only per stack: e.g. OpenCV's warpPerspective rounds differently across

@@ -9,14 +9,8 @@ import os
 import sys
 from pathlib import Path
 
-from esim_lite.core.dataconf import ConfigError, apply_overrides, from_mapping, load_yaml
+from esim_lite.core.dataconf import ConfigError, load_config
 from model.config import TrainConfig
-
-
-def load_config(path: str | None, overrides: list[str]) -> TrainConfig:
-    if path:
-        return load_yaml(TrainConfig, path, overrides)
-    return from_mapping(TrainConfig, apply_overrides({}, overrides), source="--set")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -41,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.INFO if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     try:
-        config = load_config(args.config, args.set)
+        config = load_config(TrainConfig, args.config, args.set)
         with _claim_out(args, config.run.seed):
             if config.task == "flow":
                 from model.training.flow_pretrain import pretrain_flow
@@ -62,10 +56,6 @@ def main(argv: list[str] | None = None) -> int:
     if "png" in result:
         print(f"checkpoint {args.out}/last.pt, validation examples {result['png']}")
     return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
 
 
 def _claim_out(args: argparse.Namespace, seed: int):
@@ -231,3 +221,7 @@ def export_main(argv: list[str] | None = None) -> int:
         return 2
     print(f"shipped {target} ({target.stat().st_size / 1e6:.2f} MB)")
     return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

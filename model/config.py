@@ -94,3 +94,11 @@ class TrainConfig:
     loss: LossConfig = field(default_factory=LossConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
     run: RunConfig = field(default_factory=RunConfig)
+
+    def __post_init__(self) -> None:
+        # the network's input width is the stacks' channel count: a mismatch would
+        # otherwise surface only as a shape error in the first forward pass
+        if self.model.stack_channels != self.data.stacks.channels:
+            raise ValueError(f"model.stack_channels ({self.model.stack_channels}) must equal "
+                             f"data.stacks.channels ({self.data.stacks.channels}): the "
+                             f"network takes the stacks' channels as its input")

@@ -23,11 +23,21 @@ def _default_mode() -> int:
 
 
 @contextmanager
-def atomic_path(target: str | Path, suffix: str = ".tmp") -> Iterator[Path]:
+def atomic_path(target: str | Path, suffix: str = ".tmp", *,
+                unique: bool = True) -> Iterator[Path]:
+    """A temporary path beside ``target``, renamed over it when the block succeeds.
+
+    ``unique=False``: the temporary is exactly ``target.name + suffix`` and is not created
+    beforehand; for writers that put their pid in ``suffix`` (``.tmp-<pid>``) so that a later
+    run can tell a dead writer's leftover from a live writer's file.
+    """
     target = Path(target)
     target.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=target.name + ".", suffix=suffix, dir=target.parent)
-    os.close(fd)
+    if unique:
+        fd, tmp = tempfile.mkstemp(prefix=target.name + ".", suffix=suffix, dir=target.parent)
+        os.close(fd)
+    else:
+        tmp = str(target.with_name(target.name + suffix))
     try:
         yield Path(tmp)
         os.chmod(tmp, _default_mode())

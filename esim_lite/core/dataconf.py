@@ -4,7 +4,8 @@ Every stage of e2sr describes its options as frozen dataclasses with defaults. T
 turns a mapping (usually ``yaml.safe_load`` output) into such a dataclass, recursing into
 nested dataclasses and tuples, rejecting unknown keys and wrong types with a message that
 names the source file and the dotted key. ``--set a.b=c`` overrides go through
-:func:`apply_overrides` so they get the same checks.
+:func:`apply_overrides`, and a CLI's own typed flags through :func:`apply_values`, so they
+get the same checks; :func:`load_config` is the one loader the command lines share.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 import dataclasses
 import types
 import typing
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
@@ -178,23 +179,43 @@ def load_yaml_text(cls: type[T], text: str, *, source: str = "<text>") -> T:
     return from_mapping(cls, data, source=source)
 
 
-def load_yaml(cls: type[T], path: str | Path, overrides: list[str] | None = None) -> T:
+def load_yaml(cls: type[T], path: str | Path, overrides: Sequence[str] | None = None) -> T:
     """Load ``path`` into ``cls``, then apply ``key=value`` overrides (YAML-typed values)."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: config file not found")
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
-    if not isinstance(data, Mapping):
-        raise ConfigError(f"{path}: the top level must be a mapping of sections (key: "
-                          f"value), not a {type(data).__name__}")
-    data = apply_overrides(data, overrides or [], source=str(path))
-    return from_mapping(cls, data, source=str(path))
+    return load_config(cls, path, overrides or ())
 
 
-def apply_overrides(data: Mapping[str, Any], overrides: list[str], *,
+def load_config(cls: type[T], path: str | Path | None, overrides: Sequence[str] = (),
+                values: Mapping[str, Any] | None = None) -> T:
+    """What a command line's ``--config PATH --set KEY=VALUE ...`` stands for.
+
+    The YAML at ``path`` (``None``: the defaults of ``cls``), then the ``key=value``
+    ``overrides`` (values parsed as YAML), then ``values``: dotted keys to typed values (a
+    CLI's own flags, e.g. ``{"simulation.camera.scales": [2, 4]}``), which win over both.
+    Every value passes the same checks as the file's.
+
+    Raises:
+        FileNotFoundError: ``path`` does not exist.
+        ConfigError: bad YAML, unknown key or rejected value, naming the source and key.
+    """
+    source = "--set"
+    data: Any = {}
+    if path is not None:
+        path, source = Path(path), str(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: config file not found")
+        try:
+            data = yaml.safe_load(path.read_text()) or {}
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+        if not isinstance(data, Mapping):
+            raise ConfigError(f"{path}: the top level must be a mapping of sections (key: "
+                              f"value), not a {type(data).__name__}")
+    data = apply_overrides(data, overrides, source=source)
+    data = apply_values(data, values or {}, source=source)
+    return from_mapping(cls, data, source=source)
+
+
+def apply_overrides(data: Mapping[str, Any], overrides: Sequence[str], *,
                     source: str = "--set") -> dict[str, Any]:
     """Return a copy of ``data`` with each ``a.b.c=value`` applied (value parsed as YAML)."""
     out = _deep_copy(data)
@@ -202,22 +223,37 @@ def apply_overrides(data: Mapping[str, Any], overrides: list[str], *,
         if "=" not in item:
             raise ConfigError(f"{source}: override {item!r} is not of the form key=value")
         dotted, raw = item.split("=", 1)
-        keys = dotted.strip().split(".")
-        if not all(keys):
-            raise ConfigError(f"{source}: override {item!r} has an empty key")
-        node = out
-        for k in keys[:-1]:
-            nxt = node.get(k)
-            if nxt is None:
-                nxt = node[k] = {}
-            elif not isinstance(nxt, dict):
-                raise ConfigError(f"{source}: override {item!r}: {k} is not a section")
-            node = nxt
         try:
-            node[keys[-1]] = yaml.safe_load(raw)
+            value = yaml.safe_load(raw)
         except yaml.YAMLError as exc:
             raise ConfigError(f"{source}: override {item!r}: bad value: {exc}") from exc
+        _set_dotted(out, dotted, value, source, repr(item))
     return out
+
+
+def apply_values(data: Mapping[str, Any], values: Mapping[str, Any], *,
+                 source: str = "--set") -> dict[str, Any]:
+    """Return a copy of ``data`` with each dotted key of ``values`` set to its value as it is
+    (no YAML parsing: the caller's flags are already typed)."""
+    out = _deep_copy(data)
+    for dotted, value in values.items():
+        _set_dotted(out, dotted, value, source, repr(dotted))
+    return out
+
+
+def _set_dotted(out: dict[str, Any], dotted: str, value: Any, source: str, what: str) -> None:
+    keys = dotted.strip().split(".")
+    if not all(keys):
+        raise ConfigError(f"{source}: override {what} has an empty key")
+    node = out
+    for k in keys[:-1]:
+        nxt = node.get(k)
+        if nxt is None:
+            nxt = node[k] = {}
+        elif not isinstance(nxt, dict):
+            raise ConfigError(f"{source}: override {what}: {k} is not a section")
+        node = nxt
+    node[keys[-1]] = value
 
 
 def _deep_copy(data: Mapping[str, Any]) -> dict[str, Any]:

@@ -48,16 +48,6 @@ class SampleRef:
     t_ns: int  # the frame's time (the central SBT stack ends here)
 
 
-def find_shards(root: str | Path) -> list[Path]:
-    root = Path(root)
-    if root.is_file():
-        return [root]
-    shards = sorted(root.glob("shard_*.h5")) if root.is_dir() else []
-    if not shards:
-        raise FileNotFoundError(f"{root}: no shard_*.h5 files (make them with datagen generate)")
-    return shards
-
-
 def split_sequences(keys: list[str], val_fraction: float) -> set[str]:
     """The held-out sequence keys: the ``ceil(fraction * N)`` with the smallest CRC32, so the
     split is deterministic and, with >= 2 sequences, never empty."""

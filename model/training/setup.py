@@ -13,9 +13,10 @@ from pathlib import Path
 import torch
 import torch.distributed as dist
 
+from datagen.shard import find_shards
 from model.config import TrainConfig
 from model.data.config import DataConfig
-from model.data.dataset import ShardSamples, find_shards, index_samples
+from model.data.dataset import ShardSamples, index_samples
 from model.data.input_cache import CacheSpec, InputCache
 
 

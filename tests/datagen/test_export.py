@@ -10,10 +10,12 @@ import h5py
 import numpy as np
 import pytest
 
-from datagen.cli import load_config, main
+from datagen.cli import main
+from datagen.config import DatagenConfig
 from datagen.export import export, to_uint8
 from datagen.generate import generate
 from datagen.shard import ShardReader
+from esim_lite.core.dataconf import load_config
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -21,7 +23,7 @@ ROOT = Path(__file__).resolve().parents[2]
 @pytest.fixture(scope="module")
 def shard(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("export_src")
-    generate(load_config(str(ROOT / "configs" / "datagen_tiny.yaml"), []), out, n_seq=2,
+    generate(load_config(DatagenConfig, ROOT / "configs" / "datagen_tiny.yaml"), out, n_seq=2,
              seed=3, show_progress=False)
     return out / "shard_00000.h5"
 

@@ -15,12 +15,12 @@ import numpy as np
 import pytest
 
 from datagen import generate as gen
-from datagen.cli import load_config, main
+from datagen.cli import main
 from datagen.config import DatagenConfig
 from datagen.sampling import sample_sequence
 from datagen.shard import ShardReader, frame_dtype
 from datagen.textures import TextureSampler
-from esim_lite.core.dataconf import load_yaml
+from esim_lite.core.dataconf import load_config, load_yaml
 from esim_lite.sequence import simulate_sequence
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -28,7 +28,7 @@ TINY = ROOT / "configs" / "datagen_tiny.yaml"
 
 
 def tiny(**overrides) -> DatagenConfig:
-    return load_config(str(TINY), [f"{k}={v}" for k, v in overrides.items()])
+    return load_config(DatagenConfig, TINY, [f"{k}={v}" for k, v in overrides.items()])
 
 
 def read_all(folder: Path) -> dict[str, dict[str, np.ndarray]]:
@@ -170,7 +170,8 @@ def test_kill_9_leaves_no_complete_looking_half_shard(tmp_path):
             assert len(r.sequences()) == 2
     assert subprocess.run(cmd).returncode == 0
     resumed = read_all(out)
-    cfg = load_config(str(TINY), ["simulation.frames.count=40", "simulation.duration_s=3.0"])
+    cfg = load_config(DatagenConfig, TINY, ["simulation.frames.count=40",
+                                            "simulation.duration_s=3.0"])
     gen.generate(cfg, tmp_path / "clean", n_seq=8, seed=9, show_progress=False)
     assert_same(resumed, read_all(tmp_path / "clean"))
     assert not list(out.glob("*.tmp-*"))
@@ -364,3 +365,91 @@ def test_only_dead_processes_temporary_files_are_removed(tmp_path):
     finally:
         sleeper.kill()
         sleeper.wait()
+
+
+SLURM_VARS = ("SLURM_ARRAY_TASK_ID", "SLURM_ARRAY_TASK_COUNT", "SLURM_ARRAY_TASK_MIN",
+              "SLURM_ARRAY_TASK_MAX")
+
+
+def test_slurm_array_tasks_split_one_dataset_with_auto(tmp_path, monkeypatch):
+    """``--shard-index auto --num-shards auto`` in an array ``--array=1-2``: each task
+    writes its own shards into the shared folder, together exactly the plain run's dataset."""
+    for name in SLURM_VARS:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("SLURM_ARRAY_TASK_COUNT", "2")
+    monkeypatch.setenv("SLURM_ARRAY_TASK_MIN", "1")
+    monkeypatch.setenv("SLURM_ARRAY_TASK_MAX", "2")
+    out = tmp_path / "array"
+    args = ["generate", "--config", str(TINY), "--n-seq", "6", "--seed", "3", "--workers",
+            "1", "--no-progress", "--out", str(out), "--shard-index", "auto",
+            "--num-shards", "auto"]
+    per_task = {}
+    for task in (1, 2):
+        monkeypatch.setenv("SLURM_ARRAY_TASK_ID", str(task))
+        before = set(out.glob("shard_*.h5"))
+        assert main(args) == 0
+        per_task[task] = {}
+        for path in set(out.glob("shard_*.h5")) - before:
+            with ShardReader(path) as r:
+                per_task[task][path.name] = set(r.sequences())
+    # 6 sequences, 2 per shard: task 1 (index 0) writes shards 0 and 2, task 2 shard 1
+    assert sorted(per_task[1]) == ["shard_00000.h5", "shard_00002.h5"]
+    assert sorted(per_task[2]) == ["shard_00001.h5"]
+    seqs = [set().union(*per_task[t].values()) for t in (1, 2)]
+    assert not seqs[0] & seqs[1]
+    assert seqs[0] | seqs[1] == {f"seq_{i:06d}" for i in range(6)}
+    gen.generate(tiny(), tmp_path / "plain", n_seq=6, seed=3, show_progress=False)
+    assert_same(read_all(tmp_path / "plain"), read_all(out))
+
+
+@pytest.mark.parametrize("env, expected", [
+    ({"SLURM_ARRAY_TASK_ID": "5", "SLURM_ARRAY_TASK_COUNT": "8"}, (5, 8)),
+    ({"SLURM_ARRAY_TASK_ID": "0", "SLURM_ARRAY_TASK_COUNT": "8", "SLURM_ARRAY_TASK_MIN": "0",
+      "SLURM_ARRAY_TASK_MAX": "7"}, (0, 8)),
+    ({"SLURM_ARRAY_TASK_ID": "8", "SLURM_ARRAY_TASK_COUNT": "8", "SLURM_ARRAY_TASK_MIN": "1",
+      "SLURM_ARRAY_TASK_MAX": "8"}, (7, 8)),
+])
+def test_auto_shard_index_and_count_come_from_the_array(env, expected):
+    from datagen.cli import array_job
+
+    assert array_job("auto", "auto", env) == expected
+    assert array_job("auto", 8, env) == expected  # a number is taken as it is
+    assert array_job(2, "auto", env) == (2, 8)
+    assert array_job(2, 3, {}) == (2, 3)  # no auto: the environment is not read
+
+
+@pytest.mark.parametrize("env, flags, message", [
+    ({"SLURM_ARRAY_TASK_COUNT": "2"}, ["--shard-index", "auto", "--num-shards", "auto"],
+     "--shard-index auto reads SLURM_ARRAY_TASK_ID, which is not set"),
+    ({"SLURM_ARRAY_TASK_ID": "0"}, ["--shard-index", "auto", "--num-shards", "auto"],
+     "--num-shards auto reads SLURM_ARRAY_TASK_COUNT, which is not set"),
+    ({"SLURM_ARRAY_TASK_ID": "0", "SLURM_ARRAY_TASK_COUNT": "two"}, ["--num-shards", "auto"],
+     "--num-shards auto reads SLURM_ARRAY_TASK_COUNT, which is 'two', not an integer"),
+    ({"SLURM_ARRAY_TASK_ID": "x1", "SLURM_ARRAY_TASK_COUNT": "2"}, ["--shard-index", "auto",
+                                                                     "--num-shards", "2"],
+     "--shard-index auto reads SLURM_ARRAY_TASK_ID, which is 'x1', not an integer"),
+    ({"SLURM_ARRAY_TASK_ID": "3", "SLURM_ARRAY_TASK_COUNT": "4", "SLURM_ARRAY_TASK_MIN": "1",
+      "SLURM_ARRAY_TASK_MAX": "7"}, ["--shard-index", "auto", "--num-shards", "auto"],
+     "the job array 1-7 (SLURM_ARRAY_TASK_MIN, SLURM_ARRAY_TASK_MAX) has 4 tasks"),
+    ({"SLURM_ARRAY_TASK_ID": "4"}, ["--shard-index", "auto", "--num-shards", "4"],
+     "SLURM_ARRAY_TASK_ID 4 minus SLURM_ARRAY_TASK_MIN 0 is 4, outside [0, 4)"),
+])
+def test_auto_without_a_usable_array_variable_is_a_named_error(tmp_path, monkeypatch, capsys,
+                                                                env, flags, message):
+    for name in SLURM_VARS:
+        monkeypatch.delenv(name, raising=False)
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    out = tmp_path / "ds"
+    assert main(["generate", "--config", str(TINY), "--n-seq", "2", "--no-progress",
+                 "--out", str(out)] + flags) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("datagen: error: ") and message in err and "Traceback" not in err
+    assert not out.exists()  # refused before anything is written
+
+
+def test_shard_index_is_a_number_or_auto(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["generate", "--n-seq", "2", "--out", "x", "--shard-index", "first"])
+    assert exc.value.code == 2
+    assert "expected an integer or 'auto', got 'first'" in capsys.readouterr().err

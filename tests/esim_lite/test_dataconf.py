@@ -74,3 +74,23 @@ def test_scientific_notation_without_a_dot_is_a_number():
     """YAML 1.1 reads 1e-4 as a string; a float field accepts it anyway."""
     cfg = load_yaml_text(SimulationConfig, "sampling:\n  min_step_s: 1e-5\n")
     assert cfg.sampling.min_step_s == 1e-5
+
+
+def test_load_config_applies_file_then_set_then_typed_values(tmp_path):
+    """The loader both CLIs share: typed flag values win over ``--set`` strings, which win
+    over the file; typed values get the same checks, errors name the file and key."""
+    from esim_lite.core.dataconf import load_config
+
+    path = tmp_path / "sim.yaml"
+    path.write_text("duration_s: 2\ncamera:\n  scales: [2]\n")
+    cfg = load_config(SimulationConfig, path, ["camera.scales=[4]", "camera.width=80"],
+                      {"camera.scales": [2, 4]})
+    assert cfg.camera.scales == (2, 4) and cfg.camera.width == 80 and cfg.duration_s == 2.0
+    assert load_config(SimulationConfig, path) == load_yaml(SimulationConfig, path)
+    defaults = load_config(SimulationConfig, None, values={"render.backend": "homography"})
+    assert defaults.render.backend == "homography"
+    assert defaults.camera == SimulationConfig().camera
+    with pytest.raises(ConfigError, match=r"sim.yaml: camera.width: expected an integer"):
+        load_config(SimulationConfig, path, values={"camera.width": "wide"})
+    with pytest.raises(ConfigError, match=r"--set: camera.widht: unknown key"):
+        load_config(SimulationConfig, None, values={"camera.widht": 3})

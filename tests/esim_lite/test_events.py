@@ -56,6 +56,26 @@ def test_atomic_writes_replace_whole_files_or_nothing(tmp_path):
     assert target.read_text() == "first" and sorted(os.listdir(target.parent)) == ["out.txt"]
 
 
+def test_atomic_path_with_a_fixed_temporary_name(tmp_path):
+    """``unique=False`` (datagen's ``shard_XXXXX.h5.tmp-<pid>``): the temporary is exactly
+    the target's name plus the suffix, not made beforehand, renamed or removed like any."""
+    import os
+
+    from esim_lite.core.atomic import atomic_path
+
+    target = tmp_path / "shard.h5"
+    suffix = f".tmp-{os.getpid()}"
+    with atomic_path(target, suffix, unique=False) as tmp:
+        assert tmp == tmp_path / f"shard.h5{suffix}" and not tmp.exists()
+        tmp.write_text("whole")
+    assert target.read_text() == "whole" and sorted(os.listdir(tmp_path)) == ["shard.h5"]
+    assert oct(target.stat().st_mode & 0o777) == oct(0o666 & ~_umask())
+    with pytest.raises(RuntimeError), atomic_path(target, suffix, unique=False) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("killed mid-write")
+    assert target.read_text() == "whole" and sorted(os.listdir(tmp_path)) == ["shard.h5"]
+
+
 def _umask() -> int:
     import os
 

@@ -6,9 +6,10 @@ from pathlib import Path
 
 import pytest
 
-from datagen.cli import load_config as load_datagen_config
+from datagen.config import DatagenConfig
 from datagen.generate import generate
-from model.cli import load_config
+from esim_lite.core.dataconf import load_config
+from model.config import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -16,13 +17,13 @@ ROOT = Path(__file__).resolve().parents[2]
 @pytest.fixture(scope="session")
 def tiny_shards(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("tiny_shards")
-    cfg = load_datagen_config(str(ROOT / "configs" / "datagen_tiny.yaml"), [])
+    cfg = load_config(DatagenConfig, ROOT / "configs" / "datagen_tiny.yaml")
     generate(cfg, out, n_seq=4, seed=11, show_progress=False)
     return out
 
 
 def tiny_config(*overrides: str):
-    return load_config(str(ROOT / "configs" / "train_tiny.yaml"), list(overrides))
+    return load_config(TrainConfig, ROOT / "configs" / "train_tiny.yaml", overrides)
 
 
 @pytest.fixture(scope="session")

@@ -3,17 +3,19 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from pathlib import Path
 
 import pytest
 import torch
 
+from datagen.shard import find_shards
 from esim_lite.core.dataconf import load_yaml
 from esim_lite.core.stacking import StackConfig
 from model.archs.e2sri_arch import E2SRI, NetConfig, count_parameters
 from model.config import TrainConfig
 from model.data.config import DataConfig
-from model.data.dataset import ShardSamples, find_shards, index_samples
+from model.data.dataset import ShardSamples, index_samples
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = sorted((ROOT / "configs").glob("train_*.yaml"))
@@ -97,6 +99,30 @@ def test_input_checks_name_the_shapes():
         net(stacks, central[:, :1], flows)
     with pytest.raises(ValueError, match="n_stacks must be odd"):
         NetConfig(n_stacks=4)
+
+
+@pytest.mark.parametrize("override", ["model.stack_channels=4", "data.stacks.channels=2"])
+def test_stack_channels_must_match_the_stacks_at_config_load(override, tmp_path, capsys):
+    """A network whose input width differs from the stacks' channels is refused when the
+    config is read (naming both keys and values), not at the first forward pass."""
+    from esim_lite.core.dataconf import ConfigError, load_config
+    from model.cli import main
+
+    net, data = (4, 3) if override.startswith("model") else (3, 2)
+    expected = f"model.stack_channels ({net}) must equal data.stacks.channels ({data})"
+    tiny = ROOT / "configs" / "train_tiny.yaml"
+    with pytest.raises(ConfigError, match=rf"train_tiny.yaml: .*{re.escape(expected)}"):
+        load_config(TrainConfig, tiny, [override])
+    with pytest.raises(ValueError, match=re.escape(expected)):
+        TrainConfig(model=NetConfig(stack_channels=net), data=DataConfig(
+            stacks=StackConfig(channels=data)))
+    assert main(["--data", str(tmp_path / "none"), "--config", str(tiny), "--out",
+                 str(tmp_path / "run"), "--set", override]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("train: error: ") and expected in err and "Traceback" not in err
+    assert not (tmp_path / "run").exists()  # refused before the run folder is claimed
+    both = ["model.stack_channels=2", "data.stacks.channels=2"]
+    assert load_config(TrainConfig, tiny, both).data.stacks.channels == 2  # agreeing: fine
 
 
 def test_a_tiny_model_overfits_one_sample(tiny_shards):

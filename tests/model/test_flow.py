@@ -5,10 +5,11 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from datagen.shard import find_shards
 from esim_lite.core.stacking import StackConfig
 from model.data.classical_flow import classical_flow, stack_flows
 from model.data.config import DataConfig
-from model.data.dataset import ShardSamples, find_shards, index_samples
+from model.data.dataset import ShardSamples, index_samples
 from model.training.flow_pretrain import pretrain_flow
 from model.training.train import train
 from tests.model.conftest import tiny_config

@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 import torch
 
+from datagen.shard import find_shards
 from esim_lite.core.stacking import StackConfig
-from model.data.dataset import ShardSamples, find_shards, index_samples
+from model.data.dataset import ShardSamples, index_samples
 from model.data.input_cache import CacheSpec, InputCache, build_shard, cache_folder
 from tests.model.conftest import tiny_config
 

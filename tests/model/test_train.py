@@ -15,12 +15,13 @@ import numpy as np
 import pytest
 import torch
 
+from datagen.shard import find_shards
 from esim_lite.core.stacking import StackConfig
 from model import checkpoint
 from model.cli import main
 from model.config import OptimConfig
 from model.data.config import DataConfig
-from model.data.dataset import ShardSamples, find_shards, index_samples, split_sequences
+from model.data.dataset import ShardSamples, index_samples, split_sequences
 from model.training.setup import epoch_batches
 from model.training.train import lr_lambda, train
 from tests.model.conftest import ROOT, tiny_config
