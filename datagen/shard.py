@@ -135,8 +135,8 @@ class ShardWriter:
         seed come from the spec; ``renderer`` names the backend that made its frames)."""
         index, seed, thresholds = spec.index, spec.seed, spec.thresholds
         texture, trajectory = spec.texture_name, spec.trajectory
-        scene_size_m = (spec.scene.width_m, spec.scene.height_m)
-        texture_hw = spec.scene.texture_hw
+        scene_size_m = (spec.background.width_m, spec.background.height_m)
+        texture_hw = spec.background.texture_hw
         g = self.file.create_group(sequence_name(index))
         self._group, lr = g, cameras["lr"]
         self._dtype = frame_dtype(thresholds.min_threshold)

@@ -8,6 +8,7 @@ from typing import Literal
 from esim_lite.events.sampling import SamplingConfig
 from esim_lite.events.simulator import EventConfig
 from esim_lite.geometry.camera import CameraRig, Intrinsics, check_scales
+from esim_lite.geometry.object_sampling import ObjectsConfig
 from esim_lite.geometry.trajectory import TrajectoryConfig
 from esim_lite.render.renderer import RenderConfig
 
@@ -51,6 +52,9 @@ class FrameConfig:
         count: end the sequence early once it has this many frames and ``tail_events``
             more events (the future stacks of the last frame); None runs the full duration.
         tail_events: see ``count``.
+        ground_truth: per-pixel truth rendered with every frame for every camera, any of
+            ``flow`` (instantaneous optical flow of the visible surface, px/s), ``depth``
+            (metres along the optical axis) and ``ids`` (visible surface, 0 = background).
     """
 
     mode: Literal["events", "rate"] = "events"
@@ -58,10 +62,13 @@ class FrameConfig:
     rate_hz: float = 50.0
     count: int | None = None
     tail_events: int = 12000
+    ground_truth: tuple[Literal["flow", "depth", "ids"], ...] = ()
 
     def __post_init__(self) -> None:
         if self.every_events < 1 or self.rate_hz <= 0 or self.tail_events < 0:
             raise ValueError("every_events and rate_hz must be positive, tail_events >= 0")
+        if len(set(self.ground_truth)) != len(self.ground_truth):
+            raise ValueError(f"frames.ground_truth lists a kind twice: {self.ground_truth}")
         if self.count is not None and self.count < 1:
             raise ValueError("count must be >= 1 or null")
 
@@ -72,6 +79,8 @@ class SimulationConfig:
 
     Attributes:
         duration_s: sequence length (the maximum, when ``frames.count`` ends it earlier).
+        objects: independently moving foreground objects and static cameras (off by
+            default: one textured plane under a moving camera).
     """
 
     duration_s: float = 1.0
@@ -81,7 +90,16 @@ class SimulationConfig:
     events: EventConfig = field(default_factory=EventConfig)
     sampling: SamplingConfig = field(default_factory=SamplingConfig)
     render: RenderConfig = field(default_factory=RenderConfig)
+    objects: ObjectsConfig = field(default_factory=ObjectsConfig)
 
     def __post_init__(self) -> None:
         if self.duration_s <= 0:
             raise ValueError("duration_s must be positive")
+        obj = self.objects
+        if obj.static_camera_share > 0 and not obj.enabled and not self.events.noise.enabled:
+            raise ValueError("objects.static_camera_share > 0 but objects.count allows no "
+                             "object and events.noise is off: a static camera would see "
+                             "nothing move")
+        if obj.enabled and self.render.backend == "homography":
+            raise ValueError("render.backend: homography renders one plane; objects.count "
+                             "> 0 needs mitsuba or reference")

@@ -15,20 +15,29 @@ from esim_lite.events.sampling import AdaptiveSampler
 from esim_lite.events.simulator import EventSimulator, log_intensity
 from esim_lite.events.thresholds import ContrastThresholds
 from esim_lite.geometry.camera import CameraRig
-from esim_lite.geometry.pose import Pose
+from esim_lite.geometry.objects import DynamicScene, as_dynamic
+from esim_lite.geometry.pose import Pose, Twist
 from esim_lite.geometry.scene import PlanarScene
 from esim_lite.geometry.trajectory import BSplineTrajectory
+from esim_lite.geometry.visibility import SurfaceTruth, surface_truth
 from esim_lite.render.antialias import texels_per_sample
 from esim_lite.render.renderer import RenderConfig, Renderer, make_renderer, supersample_for
 
 
 @dataclass(frozen=True, eq=False)
 class FrameSample:
-    """All cameras rendered at one frame time: ``images[name]`` is float32[H, W]."""
+    """All cameras rendered at one frame time: ``images[name]`` is float32[H, W].
+
+    ``object_poses``: the objects' object-to-world poses at the frame (none for a plane
+    alone); ``truth[name]``: per-pixel flow, depth and surface ids of each camera, when the
+    configuration asks for ground truth (``frames.ground_truth``).
+    """
 
     t_ns: int
     pose: Pose
     images: dict[str, np.ndarray]
+    object_poses: tuple[Pose, ...] = ()
+    truth: dict[str, SurfaceTruth] | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -110,23 +119,58 @@ def _pose_row(t_ns: int, pose: Pose) -> np.ndarray:
     return np.concatenate([[t_ns * 1e-9], pose.to_tq()])
 
 
-def sample_footprints(scene: PlanarScene, trajectory: BSplineTrajectory, rig: CameraRig,
-                      config: RenderConfig) -> dict[str, float]:
-    """Per camera, the largest texels-per-sample over the trajectory (for prefiltering)."""
+def sample_footprints(scene: PlanarScene | DynamicScene, trajectory: BSplineTrajectory,
+                      rig: CameraRig, config: RenderConfig) -> dict[str, float]:
+    """Per camera, the largest texels-per-sample of the background over the trajectory (for
+    prefiltering)."""
+    plane = as_dynamic(scene).background
     poses = [trajectory.pose(t) for t in trajectory.sample_times(0.01)]
-    return {name: texels_per_sample(scene, cam, supersample_for(name, config), poses)
+    return {name: texels_per_sample(plane, cam, supersample_for(name, config), poses)
             for name, cam in rig.cameras().items()}
 
 
-def simulate(scene: PlanarScene, trajectory: BSplineTrajectory, thresholds: ContrastThresholds,
+class _Stage:
+    """Everything that moves, evaluated at one time: the camera and the objects."""
+
+    def __init__(self, scene: DynamicScene, trajectory: BSplineTrajectory, rig: CameraRig,
+                 truth: bool) -> None:
+        self.scene, self.trajectory, self.rig, self.truth = scene, trajectory, rig, truth
+
+    def at(self, t_ns: int) -> tuple[Pose, Twist, tuple[Pose, ...], tuple[Twist, ...]]:
+        pose, twist = self.trajectory.pose_and_twist(t_ns * 1e-9)
+        poses, twists = self.scene.object_motion(t_ns * 1e-9)
+        return pose, twist, poses, twists
+
+    def flow(self, pose: Pose, twist: Twist, poses: tuple[Pose, ...],
+             twists: tuple[Twist, ...]) -> np.ndarray | None:
+        """float64[H, W, 2] motion field of what the event camera sees (None: a plane alone,
+        whose flow the sampler computes itself)."""
+        if not self.scene.objects:
+            return None
+        gt = surface_truth(self.scene, self.rig.event, pose, twist, poses, twists)
+        return gt.flow.transpose(1, 2, 0).astype(np.float64)
+
+    def frame(self, renderer: Renderer, t_ns: int) -> FrameSample:
+        pose, twist, poses, twists = self.at(t_ns)
+        images = {n: renderer.render(n, pose, poses) for n in renderer.cameras}
+        truth = None
+        if self.truth:
+            cams = self.rig.cameras()
+            truth = {n: surface_truth(self.scene, cams[n], pose, twist, poses, twists)
+                     for n in renderer.cameras}
+        return FrameSample(t_ns, pose, images, poses, truth)
+
+
+def simulate(scene: PlanarScene | DynamicScene, trajectory: BSplineTrajectory,
+             thresholds: ContrastThresholds,
              config: SimulationConfig, rng: np.random.Generator,
              renderer: Renderer | None = None, chunk_events: int = 1_000_000,
              ) -> Iterator[SimulationChunk]:
     """Stream a sequence as chunks of about ``chunk_events`` events (bounded memory).
 
     Args:
-        scene, trajectory: what is seen and how the rig moves; the trajectory must last at
-            least ``config.duration_s``.
+        scene, trajectory: what is seen (a plane, or a plane with moving objects) and how
+            the rig moves; the trajectory must last at least ``config.duration_s``.
         thresholds: the event camera's thresholds (see :func:`sample_thresholds`).
         rng: drives the noise model only; everything else is already drawn.
         renderer: a renderer for ``config.camera.rig().cameras()``; built from
@@ -141,46 +185,48 @@ def simulate(scene: PlanarScene, trajectory: BSplineTrajectory, thresholds: Cont
         renderer = make_renderer(scene, rig.cameras(), config.render,
                                  sample_footprints(scene, trajectory, rig, config.render))
     try:
-        yield from _run(renderer, trajectory, thresholds, config, rig, rng, chunk_events)
+        stage = _Stage(as_dynamic(scene), trajectory, rig, bool(config.frames.ground_truth))
+        yield from _run(renderer, stage, thresholds, config, rig, rng, chunk_events)
     finally:
         if own_renderer:
             renderer.close()
 
 
-def _run(renderer: Renderer, trajectory: BSplineTrajectory, thresholds: ContrastThresholds,
+def _run(renderer: Renderer, stage: _Stage, thresholds: ContrastThresholds,
          config: SimulationConfig, rig: CameraRig, rng: np.random.Generator,
          chunk_events: int) -> Iterator[SimulationChunk]:
     ev_cfg = config.events
     noise = NoiseModel(ev_cfg.noise, rig.event.hw, rng) if ev_cfg.noise.enabled else None
     t_end = int(round(config.duration_s * 1e9))
-    names = list(renderer.cameras)
 
     t = 0
-    pose, twist = trajectory.pose_and_twist(0.0)
-    image = renderer.render("lr", pose)
+    state = stage.at(0)
+    pose, twist = state[0], state[1]
+    image = renderer.render("lr", pose, state[2])
     sim = EventSimulator(image, t, thresholds, log_eps=ev_cfg.log_eps,
                          refractory_ns=ev_cfg.refractory_ns, noise=noise)
     sampler = AdaptiveSampler(config.sampling, rig.event, thresholds.min_threshold)
     schedule = FrameSchedule(config.frames, config.duration_s)
     log_img = log_intensity(image, ev_cfg.log_eps)
-    frames = [FrameSample(0, pose, {n: renderer.render(n, pose) for n in names})]
+    frames = [stage.frame(renderer, 0)]
     events, poses, n_events = [], [_pose_row(t, pose)], 0
 
     while t < t_end and not schedule.done():
-        step_s = sampler.propose(log_img, pose, twist)
+        step_s = sampler.propose(log_img, pose, twist, stage.flow(*state))
         while True:
             t_new = min(t + max(1, int(round(step_s * 1e9))), t_end)
-            new_pose, new_twist = trajectory.pose_and_twist(t_new * 1e-9)
-            new_log = log_intensity(renderer.render("lr", new_pose), ev_cfg.log_eps)
+            new_state = stage.at(t_new)
+            new_log = log_intensity(renderer.render("lr", new_state[0], new_state[2]),
+                                    ev_cfg.log_eps)
             change = float(np.abs(new_log - log_img).max())
             step_s = sampler.review(change, (t_new - t) * 1e-9)
             if step_s is None:
                 break
-        t, pose, twist, log_img = t_new, new_pose, new_twist, new_log
+        t, state, log_img = t_new, new_state, new_log
+        pose, twist = state[0], state[1]
         batch = sim.step_log(log_img, t)
         for ft in schedule.due(batch, t):
-            fpose = pose if ft == t else trajectory.pose(ft * 1e-9)
-            frames.append(FrameSample(ft, fpose, {n: renderer.render(n, fpose) for n in names}))
+            frames.append(stage.frame(renderer, ft))
         events.append(batch)
         poses.append(_pose_row(t, pose))
         n_events += len(batch)
@@ -192,7 +238,7 @@ def _run(renderer: Renderer, trajectory: BSplineTrajectory, thresholds: Contrast
                           np.array(poses).reshape(-1, 8))
 
 
-def simulate_sequence(scene: PlanarScene, trajectory: BSplineTrajectory,
+def simulate_sequence(scene: PlanarScene | DynamicScene, trajectory: BSplineTrajectory,
                       thresholds: ContrastThresholds, config: SimulationConfig,
                       rng: np.random.Generator, renderer: Renderer | None = None
                       ) -> SimulatedSequence:

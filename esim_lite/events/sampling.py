@@ -14,6 +14,14 @@ predicted change of recent steps), the caller renders the sample and reports the
 largest change, and a step exceeding ``lambda C`` is retried shorter. Accepted steps thus
 satisfy the bound by construction, except at ``min_step_s``.
 
+With moving objects the prediction uses the exact flow of each pixel's visible surface.
+Where one surface passes in front of another the image is not continuous in time: a
+sub-pixel sample that changes surface changes its pixel by a finite amount in an
+arbitrarily short step. The review then keeps shortening a rejected step only while the
+change shrinks with it; a change that stays when the step shrinks is a jump at an
+occlusion boundary and is accepted (counted in ``jumps``), so such steps cannot drive the
+sampler down to ``min_step_s`` for the rest of the sequence.
+
 Gradient bound used by the prediction: ``|u| Gx + |v| Gy``, where ``Gx`` is the larger
 one-sided difference of ``L`` along x over the rows y-1..y+1 (and ``Gy`` likewise), so that
 diagonal motion also sees its neighbours' edges.
@@ -32,6 +40,10 @@ from esim_lite.geometry.pose import Pose, Twist
 
 #: Proposed steps aim at this fraction of the allowed change, leaving room for error.
 SAFETY = 0.8
+#: With moving objects, a retry at most this fraction of the rejected step ...
+JUMP_SHRINK = 0.6
+#: ... that keeps at least this fraction of its change is a jump, not a fast change.
+JUMP_KEEP = 0.7
 
 
 @dataclass(frozen=True)
@@ -150,18 +162,32 @@ class AdaptiveSampler:
         self.budget = config.contrast_fraction * float(min_threshold)
         self.gain = 1.0
         self.rejected = 0
+        self.jumps = 0
         self._rate = 0.0
+        self._dynamic = False
+        self._tried: tuple[float, float] | None = None
 
-    def propose(self, log_img: np.ndarray, pose: Pose, twist: Twist) -> float:
-        """Seconds to the next sample, from the current log image and camera motion."""
+    def propose(self, log_img: np.ndarray, pose: Pose, twist: Twist,
+                flow: np.ndarray | None = None) -> float:
+        """Seconds to the next sample, from the current log image and the motion.
+
+        Args:
+            flow: float64[H, W, 2] exact motion field of the visible surfaces (px/s), for
+                scenes whose objects move on their own; None: the static plane's field,
+                computed here from the camera's ``pose`` and ``twist``.
+        """
         cfg = self.config
         if not cfg.adaptive:
             return cfg.max_step_s
-        cam = self.camera
-        v_c, w_c = twist.in_camera(pose)
-        self._rate = max_log_change_rate(log_img, cam.fx, cam.fy, cam.cx, cam.cy,
-                                         np.ascontiguousarray(pose.r_wc[2]),
-                                         float(pose.t_wc[2]), v_c, w_c)
+        self._dynamic, self._tried = flow is not None, None
+        if flow is not None:
+            self._rate = float(log_change_rate_bound(log_img, flow).max())
+        else:
+            cam = self.camera
+            v_c, w_c = twist.in_camera(pose)
+            self._rate = max_log_change_rate(log_img, cam.fx, cam.fy, cam.cx, cam.cy,
+                                             np.ascontiguousarray(pose.r_wc[2]),
+                                             float(pose.t_wc[2]), v_c, w_c)
         if self._rate <= 0:
             return cfg.max_step_s
         dt = SAFETY * self.budget / (self.gain * self._rate)
@@ -173,6 +199,8 @@ class AdaptiveSampler:
         cfg = self.config
         if not cfg.adaptive:
             return None
+        if self._dynamic:
+            return self._review_dynamic(change, dt_s)
         if self._rate > 0 and dt_s > 0:
             observed = change / (self._rate * dt_s)
             self.gain = observed if observed > self.gain else 0.8 * self.gain + 0.2 * observed
@@ -180,4 +208,25 @@ class AdaptiveSampler:
         if change <= self.budget or dt_s <= cfg.min_step_s * (1 + 1e-9):
             return None
         self.rejected += 1
+        return max(cfg.min_step_s, dt_s * SAFETY * self.budget / change)
+
+    def _review_dynamic(self, change: float, dt_s: float) -> float | None:
+        """The review with moving objects, whose edges (and the lines where surfaces cross)
+        make the image jump: a sub-pixel sample that changes surface changes its pixel by a
+        finite amount however short the step. A retry that shortens the step by at least
+        :data:`JUMP_SHRINK` but keeps at least :data:`JUMP_KEEP` of the change is such a
+        jump: it is accepted (no step would resolve it). The gain stays 1 (ESIM's rule as it
+        is): jumps of every size below the budget would otherwise teach it that every step
+        overshoots."""
+        cfg = self.config
+        tried, self._tried = self._tried, None
+        jump = tried is not None and dt_s <= JUMP_SHRINK * tried[0] and \
+            change >= JUMP_KEEP * tried[1]
+        if jump:
+            self.jumps += 1
+            return None
+        if change <= self.budget or dt_s <= cfg.min_step_s * (1 + 1e-9):
+            return None
+        self.rejected += 1
+        self._tried = (dt_s, change)
         return max(cfg.min_step_s, dt_s * SAFETY * self.budget / change)

@@ -160,7 +160,7 @@ class TrajectoryConfig:
             raise ValueError("direction_persistence must be in [0, 1)")
 
 
-def _reflect(value: float, lo: float, hi: float) -> float:
+def reflect(value: float, lo: float, hi: float) -> float:
     """Fold ``value`` back into ``[lo, hi]`` like a billiard ball."""
     if hi <= lo:
         return lo
@@ -169,7 +169,7 @@ def _reflect(value: float, lo: float, hi: float) -> float:
     return lo + (x if x <= span else 2 * span - x)
 
 
-def _persistent_walk(n: int, dim: int, speeds: tuple[float, float], dt: float,
+def persistent_walk(n: int, dim: int, speeds: tuple[float, float], dt: float,
                      persistence: float, rng: np.random.Generator) -> np.ndarray:
     """float64[n, dim] steps: random directions with memory, lengths speed * dt."""
     steps = np.zeros((n, dim))
@@ -200,8 +200,8 @@ def sample_trajectory(config: TrajectoryConfig, duration_s: float, camera: Intri
     lo_h, hi_h = config.height_m
     max_tilt = math.radians(config.max_tilt_deg)
 
-    trans = _persistent_walk(n, 3, config.speed_m_s, dt, config.direction_persistence, rng)
-    rot = _persistent_walk(n, 3, tuple(math.radians(w) for w in config.angular_speed_deg_s),
+    trans = persistent_walk(n, 3, config.speed_m_s, dt, config.direction_persistence, rng)
+    rot = persistent_walk(n, 3, tuple(math.radians(w) for w in config.angular_speed_deg_s),
                            dt, config.direction_persistence, rng)
     p = np.array([0.0, 0.0, rng.uniform(lo_h, hi_h)])
     tilt = rng.normal(size=2)
@@ -211,13 +211,13 @@ def sample_trajectory(config: TrajectoryConfig, duration_s: float, camera: Intri
     for k in range(n):
         if k:
             p = p + trans[k]
-            p = np.array([_reflect(p[0], -config.wander_m, config.wander_m),
-                          _reflect(p[1], -config.wander_m, config.wander_m),
-                          _reflect(p[2], lo_h, hi_h)])
+            p = np.array([reflect(p[0], -config.wander_m, config.wander_m),
+                          reflect(p[1], -config.wander_m, config.wander_m),
+                          reflect(p[2], lo_h, hi_h)])
             tilt = tilt + rot[k, :2]
             norm = np.linalg.norm(tilt)
             if norm > max_tilt:  # reflect radially at the tilt bound
-                tilt *= _reflect(norm, 0.0, max_tilt) / norm
+                tilt *= reflect(norm, 0.0, max_tilt) / norm
             roll += rot[k, 2]
         positions.append(p.copy())
         rotations.append(so3_exp(np.array([tilt[0], tilt[1], 0.0])) @ LOOK_DOWN

@@ -8,6 +8,8 @@ intrinsics scaled by ``s`` (see :meth:`Intrinsics.scaled`) and block-averaged.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import cv2
 import numpy as np
 
@@ -37,8 +39,11 @@ class HomographyRenderer:
         self._fine = {name: cam.scaled(self.supersample[name])
                       for name, cam in self.cameras.items()}
 
-    def render(self, camera: str, pose: Pose) -> np.ndarray:
-        """float32[H, W] linear intensity seen by ``camera`` at ``pose``."""
+    def render(self, camera: str, pose: Pose, objects: Sequence[Pose] = ()) -> np.ndarray:
+        """float32[H, W] linear intensity seen by ``camera`` at ``pose`` (one plane: no
+        objects)."""
+        if objects:
+            raise ValueError("the homography renderer renders one plane, without objects")
         cam, fine, s = self.cameras[camera], self._fine[camera], self.supersample[camera]
         scene = self.scenes[camera]
         m = scene.texture_from_image(fine, pose)

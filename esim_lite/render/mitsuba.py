@@ -1,4 +1,5 @@
-"""Mitsuba 3 rendering of the planar scene; the only module that imports mitsuba/drjit.
+"""Mitsuba 3 rendering of the planar scene and its moving objects; the only module that
+imports mitsuba/drjit.
 
 On the JIT variants (LLVM, CUDA) a camera is rendered as one wavefront of primary rays
 (:class:`_RayCast`): a ray through the centre of every cell of the ``s x s`` sub-pixel grid
@@ -16,9 +17,25 @@ below), without the sampler, film, emitter query and scattered accumulation arou
   launch into blocks of 16,384 items (sums across lanes that straddle two blocks are added
   in thread-timing order) cannot change a bit: renders are the same with any thread count.
 
+Objects (:class:`DynamicScene`): the same wavefront also meets every object, in the ray
+kernel itself rather than as Mitsuba shapes. The camera's pose in each object's frame is 12
+more opaque kernel inputs per object (computed in float64 on the host), so a new object pose
+is a replay of the same frozen kernels: no ``mi.traverse``/``params.update`` of shape
+transforms, no acceleration structure to rebuild, no re-tracing. Per object and lane: the ray
+meets the object's plane ``z = 0`` at camera depth ``lam``; it counts where
+``0 < lam < depth so far``, inside the patch and where the bilinear alpha (a drjit
+``Texture2f`` holding texture and alpha as two channels, ``clamp``, texel centres as
+:class:`PlanarScene`'s) passes :data:`ALPHA_CUTOFF`; then it replaces depth and value (the
+texture channel). Objects are tested in scene order and win only when strictly nearer, as in
+:func:`esim_lite.geometry.visibility.trace`. The background is hit and shaded by Mitsuba's
+rectangle and BSDF exactly as without objects, and a scene without objects runs the
+plane-only kernel unchanged.
+
 Scalar variants (the fallback when drjit's LLVM is unusable) render the same scene with
 ``mi.render``: an ``s``-times larger film with one centred sample per film pixel and the
-``direct`` integrator sampling only the BSDF; its samples are averaged in numpy, same order.
+``direct`` integrator sampling only the BSDF; objects are laid over those samples in numpy
+by :func:`esim_lite.geometry.visibility.trace` (the same sample rays, float64); the samples
+are averaged in numpy, same order.
 
 Conventions bridged here: the ray cast uses our camera frame (OpenCV's: x right, y down,
 z forward; pixel centres at integers); Mitsuba's perspective sensor (scalar path) is X left,
@@ -32,13 +49,22 @@ import logging
 import os
 import subprocess
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
 from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.objects import (
+    ALPHA_CUTOFF,
+    DynamicScene,
+    ObjectPatch,
+    as_dynamic,
+    relative_pose,
+)
 from esim_lite.geometry.pose import Pose
 from esim_lite.geometry.scene import PlanarScene
+from esim_lite.geometry.visibility import bilinear, trace
 
 log = logging.getLogger(__name__)
 
@@ -113,16 +139,17 @@ def resolve_variant(requested: str = "auto") -> str:
 
 
 class MitsubaRenderer:
-    """Renders each named camera's :class:`PlanarScene` with Mitsuba 3.
+    """Renders each named camera's :class:`PlanarScene` or :class:`DynamicScene` with
+    Mitsuba 3.
 
     One Mitsuba scene per camera, because each camera may see its own prefiltered texture.
     """
 
     name = "mitsuba"
 
-    def __init__(self, scenes: dict[str, PlanarScene], cameras: dict[str, Intrinsics],
-                 supersample: dict[str, int], variant: str = "auto",
-                 threads: int | None = None) -> None:
+    def __init__(self, scenes: dict[str, PlanarScene | DynamicScene],
+                 cameras: dict[str, Intrinsics], supersample: dict[str, int],
+                 variant: str = "auto", threads: int | None = None) -> None:
         import drjit as dr
         import mitsuba as mi
 
@@ -136,9 +163,10 @@ class MitsubaRenderer:
         self._mono = "mono" in self.variant
         self._jit = not self.variant.startswith("scalar")
         self._scenes, self._params, self._cast = {}, {}, {}
+        self._dynamic = {name: as_dynamic(scenes[name]) for name in self.cameras}
         for name, cam in self.cameras.items():
             s = self.supersample[name]
-            parts = {"type": "scene", "plane": self._plane(scenes[name])}
+            parts = {"type": "scene", "plane": self._plane(self._dynamic[name].background)}
             if not self._jit:
                 parts.update({
                     "integrator": {"type": "direct", "emitter_samples": 0, "bsdf_samples": 1},
@@ -147,7 +175,7 @@ class MitsubaRenderer:
             scene = mi.load_dict(parts)
             self._scenes[name] = scene
             if self._jit:
-                self._cast[name] = _RayCast(cam, s)
+                self._cast[name] = _RayCast(cam, s, self._dynamic[name].objects)
             else:
                 self._params[name] = mi.traverse(scene)
 
@@ -192,14 +220,37 @@ class MitsubaRenderer:
         params.update()
         return np.array(mi.render(self._scenes[camera], seed=0), dtype=np.float32)[..., 0]
 
-    def render(self, camera: str, pose: Pose) -> np.ndarray:
-        """float32[H, W] linear intensity seen by ``camera`` at ``pose``."""
+    def _overlay_objects(self, camera: str, pose: Pose, objects: tuple[Pose, ...],
+                         fine: np.ndarray) -> np.ndarray:
+        """The scalar path's objects: ``fine`` (float32[H*s, W*s], the background's samples)
+        with every sample whose ray meets an object first replaced by that object's texture,
+        in numpy (float64 hits, the same sample rays as the film)."""
+        scene = self._dynamic[camera]
+        rays = self.cameras[camera].scaled(self.supersample[camera]).pixel_rays()
+        hits = trace(scene, pose, objects, rays)
+        out = fine.copy()
+        for k, obj in enumerate(scene.objects):
+            sel = hits.ids == k + 1
+            if sel.any():
+                out[sel] = bilinear(obj.surface.texture, hits.col[sel], hits.row[sel])
+        return out
+
+    def render(self, camera: str, pose: Pose, objects: Sequence[Pose] = ()) -> np.ndarray:
+        """float32[H, W] linear intensity seen by ``camera`` at ``pose``, with the scene's
+        objects at ``objects`` (object-to-world poses, in the scene's object order)."""
         mi = self._mi
+        objects = tuple(objects)
+        count = len(self._dynamic[camera].objects)
+        if len(objects) != count:
+            raise ValueError(f"camera {camera!r}: the scene has {count} objects, "
+                             f"render() got {len(objects)} object poses")
         if mi.variant() != self.variant:  # the variant is process-global; another renderer
             mi.set_variant(self.variant)  # in this process may have switched it
         if self._jit:
-            return self._cast[camera](self._scenes[camera], pose)
+            return self._cast[camera](self._scenes[camera], pose, objects)
         fine = self._render_film(camera, pose)
+        if objects:
+            fine = self._overlay_objects(camera, pose, objects, fine)
         s = self.supersample[camera]
         if s == 1:
             return fine
@@ -213,27 +264,40 @@ class MitsubaRenderer:
         self._cast.clear()
         self._params.clear()
         self._scenes.clear()
+        self._dynamic.clear()
 
 
 class _RayCast:
     """Renders ``camera`` with ``s x s`` primary rays per pixel, one through the centre of
-    every cell of its sub-pixel grid (OpenCV conventions), traced through a Mitsuba scene.
+    every cell of its sub-pixel grid (OpenCV conventions), traced through a Mitsuba scene
+    and past the scene's objects.
 
-    Two kernels, recorded once as a frozen function of the scene and the pose (12 opaque
-    floats: ``R_wc`` row by row, then ``t_wc``) and replayed for every pose: the rays (one lane
-    each, over the ``s``-times finer grid, so both cores share the work), then per camera
-    pixel the sum of its ``s x s`` values in float64 in one fixed order (row by row), as
-    the scalar path does in numpy. Rays that miss the scene give 0.
+    Two kernels, recorded once as a frozen function of the scene, the pose (12 opaque
+    floats: ``R_wc`` row by row, then ``t_wc``), the objects' textures and the camera's pose
+    in every object's frame (12 opaque floats each, same layout), and replayed for every
+    pose: the rays (one lane each, over the ``s``-times finer grid, so both cores share the
+    work), then per camera pixel the sum of its ``s x s`` values in float64 in one fixed
+    order (row by row), as the scalar path does in numpy. Rays that miss everything give 0.
     """
 
-    def __init__(self, camera: Intrinsics, supersample: int) -> None:
+    def __init__(self, camera: Intrinsics, supersample: int,
+                 objects: Sequence[ObjectPatch] = ()) -> None:
         import drjit as dr
+        import mitsuba as mi
 
         self.camera = camera
         self.supersample = supersample
+        # sizes are fixed per renderer: literals in the kernel; textures are kernel inputs
+        self._sizes = [(float(o.surface.width_m), float(o.surface.height_m)) for o in objects]
+        self._textures = [mi.Texture2f(
+            mi.TensorXf(np.stack([o.surface.texture, o.alpha], axis=-1)),
+            # the emulated lookup on CUDA too: hardware filtering rounds its weights to
+            # 8 bits, which would move the alpha test's edges
+            use_accel=False, filter_mode=dr.FilterMode.Linear, wrap_mode=dr.WrapMode.Clamp)
+            for o in objects]
         self._frozen = dr.freeze(self._trace)
 
-    def _trace(self, scene, pose):
+    def _trace(self, scene, pose, textures, object_poses):
         import drjit as dr
         import mitsuba as mi
 
@@ -255,8 +319,44 @@ class _RayCast:
         si = hit.compute_surface_interaction(ray, mi.RayFlags.UV)
         radiance = plane.bsdf().eval_diffuse_reflectance(si, si.is_valid())
         samples = dr.select(si.is_valid(), radiance[0], 0.0)
+        if textures:
+            # the hit's camera-frame depth: ray.d is direction / |direction|, z(direction) = 1
+            depth = dr.select(si.is_valid(), hit.t / dr.norm(direction), dr.inf)
+            samples = self._occlude(x, y, depth, samples, textures, object_poses)
         if s == 1:
             return samples
+        return self._box(samples)
+
+    def _occlude(self, x, y, depth, samples, textures, object_poses):
+        """``samples`` with every ray that meets a solid point of an object nearer than
+        ``depth`` (camera-frame depth of the hit so far) given that object's texture."""
+        import drjit as dr
+        import mitsuba as mi
+
+        for (width, height), tex, m in zip(self._sizes, textures, object_poses):
+            # the ray (x, y, 1) from the camera centre, in the object's frame
+            dx = m[0] * x + m[1] * y + m[2]
+            dy = m[3] * x + m[4] * y + m[5]
+            dz = m[6] * x + m[7] * y + m[8]
+            lam = -m[11] / dz  # its camera depth at the object's plane z = 0 (two-sided)
+            px, py = m[9] + lam * dx, m[10] + lam * dy
+            inside = (lam > 0) & (lam < depth) & (dr.abs(px) <= width / 2) & \
+                (dr.abs(py) <= height / 2)
+            # texel centres at (j + 0.5) / w as in PlanarScene; row 0 at y = +height / 2
+            texel = tex.eval(mi.Point2f(px * (1 / width) + 0.5, 0.5 - py * (1 / height)),
+                             inside)
+            solid = inside & (texel[1] >= ALPHA_CUTOFF)
+            depth = dr.select(solid, lam, depth)
+            samples = dr.select(solid, texel[0], samples)
+        return samples
+
+    def _box(self, samples):
+        """Per camera pixel, the float64 mean of its ``s x s`` samples (row by row)."""
+        import drjit as dr
+        import mitsuba as mi
+
+        s, cam = self.supersample, self.camera
+        fine = cam.scaled(s)
         dr.eval(samples)  # the sum below reads neighbouring lanes: a second kernel
         pixel = dr.arange(mi.UInt32, cam.width * cam.height)
         prow = pixel // cam.width
@@ -267,12 +367,17 @@ class _RayCast:
                 total += mi.Float64(dr.gather(mi.Float, samples, first + i * fine.width + j))
         return mi.Float(total / (s * s))
 
-    def __call__(self, scene, pose: Pose) -> np.ndarray:
-        """float32[H, W] radiance of ``scene`` seen from ``pose``."""
+    def __call__(self, scene, pose: Pose, objects: tuple[Pose, ...] = ()) -> np.ndarray:
+        """float32[H, W] radiance of ``scene`` seen from ``pose``, objects at ``objects``."""
         import drjit as dr
         import mitsuba as mi
 
-        packed = np.concatenate([pose.r_wc.reshape(-1), pose.t_wc]).astype(np.float32)
-        values = self._frozen(scene, [dr.opaque(mi.Float, float(v)) for v in packed])
+        def opaque(p: Pose) -> list:
+            packed = np.concatenate([p.r_wc.reshape(-1), p.t_wc]).astype(np.float32)
+            return [dr.opaque(mi.Float, float(v)) for v in packed]
+
+        # float64 on the host: the camera in each object's frame, one rigid map per object
+        seen = [opaque(relative_pose(pose, p)) for p in objects]
+        values = self._frozen(scene, opaque(pose), self._textures, seen)
         return np.array(values, dtype=np.float32).reshape(self.camera.height,
                                                           self.camera.width)

@@ -1,26 +1,29 @@
-"""One rendering interface over the Mitsuba and homography backends."""
+"""One rendering interface over the Mitsuba, homography and exact reference backends."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
 from typing import Literal, Protocol
 
 import numpy as np
 
 from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.objects import DynamicScene, as_dynamic
 from esim_lite.geometry.pose import Pose
 from esim_lite.geometry.scene import PlanarScene
 from esim_lite.render.antialias import prefiltered
 
 
 class Renderer(Protocol):
-    """Renders named cameras of a fixed scene at arbitrary poses."""
+    """Renders named cameras of a scene at arbitrary camera and object poses."""
 
     name: str
     cameras: dict[str, Intrinsics]
 
-    def render(self, camera: str, pose: Pose) -> np.ndarray:
-        """float32[H, W] linear intensity."""
+    def render(self, camera: str, pose: Pose, objects: Sequence[Pose] = ()) -> np.ndarray:
+        """float32[H, W] linear intensity; ``objects``: the scene's object-to-world poses at
+        the same time (in object order; none for a plane alone)."""
 
     def close(self) -> None: ...
 
@@ -30,7 +33,8 @@ class RenderConfig:
     """How frames are rendered.
 
     Attributes:
-        backend: ``mitsuba`` (the project's default) or ``homography`` (exact and fast).
+        backend: ``mitsuba`` (the project's default), ``homography`` (exact and fast, one
+            plane only) or ``reference`` (exact ray tracing in numpy: the slow oracle).
         supersample_lr: sub-pixel grid side for the event camera (box filter, s*s samples);
             against an 8x8 render, 3x3 leaves <= 2% extra events from aliasing, 2x2 <= 4.3%.
         supersample_hr: sub-pixel grid side for the HR intensity cameras (frames only).
@@ -38,7 +42,7 @@ class RenderConfig:
         threads: worker threads for Mitsuba's LLVM backend (None: all cores).
     """
 
-    backend: Literal["mitsuba", "homography"] = "mitsuba"
+    backend: Literal["mitsuba", "homography", "reference"] = "mitsuba"
     supersample_lr: int = 3
     supersample_hr: int = 2
     mitsuba_variant: str = "auto"
@@ -49,26 +53,43 @@ class RenderConfig:
             raise ValueError("supersample factors must be >= 1")
 
 
-def make_renderer(scene: PlanarScene, cameras: dict[str, Intrinsics], config: RenderConfig,
-                  texels_per_sample: dict[str, float] | None = None) -> Renderer:
+def make_renderer(scene: PlanarScene | DynamicScene, cameras: dict[str, Intrinsics],
+                  config: RenderConfig, texels_per_sample: dict[str, float] | None = None
+                  ) -> Renderer:
     """Build the configured backend for ``cameras`` (``"lr"`` gets ``supersample_lr``).
 
     Args:
-        texels_per_sample: per camera, the largest texel footprint of one sample over the
-            sequence; its texture is prefiltered for it (see :mod:`esim_lite.render.antialias`).
-            Cameras not listed see the texture as is.
+        scene: a plane alone, or a background plane with moving objects.
+        texels_per_sample: per camera, the largest texel footprint of one sample of the
+            background over the sequence; its texture is prefiltered for it (see
+            :mod:`esim_lite.render.antialias`). Cameras not listed see the texture as is.
     """
     footprint = texels_per_sample or {}
-    scenes = {name: prefiltered(scene, footprint.get(name, 0.0)) for name in cameras}
+    dynamic = as_dynamic(scene)
+    scenes = {name: replace(dynamic, background=prefiltered(dynamic.background,
+                                                            footprint.get(name, 0.0)))
+              for name in cameras}
     supersample = {name: supersample_for(name, config) for name in cameras}
     if config.backend == "homography":
+        if dynamic.objects:
+            raise ValueError("render.backend: homography renders one plane; a scene with "
+                             "objects needs mitsuba or reference")
         from esim_lite.render.homography import HomographyRenderer
 
-        return HomographyRenderer(scenes, cameras, supersample)
+        return HomographyRenderer({n: s.background for n, s in scenes.items()}, cameras,
+                                  supersample)
+    if config.backend == "reference":
+        from esim_lite.render.reference import ReferenceRenderer
+
+        return ReferenceRenderer(scenes, cameras, supersample)
     if config.backend == "mitsuba":
         from esim_lite.render.mitsuba import MitsubaRenderer
 
-        return MitsubaRenderer(scenes, cameras, supersample, variant=config.mitsuba_variant,
+        if dynamic.objects:
+            return MitsubaRenderer(scenes, cameras, supersample,
+                                   variant=config.mitsuba_variant, threads=config.threads)
+        return MitsubaRenderer({n: s.background for n, s in scenes.items()}, cameras,
+                               supersample, variant=config.mitsuba_variant,
                                threads=config.threads)
     raise ValueError(f"unknown render backend {config.backend!r}")
 
