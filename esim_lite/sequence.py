@@ -141,14 +141,14 @@ class _Stage:
         poses, twists = self.scene.object_motion(t_ns * 1e-9)
         return pose, twist, poses, twists
 
-    def flow(self, pose: Pose, twist: Twist, poses: tuple[Pose, ...],
-             twists: tuple[Twist, ...]) -> np.ndarray | None:
-        """float64[H, W, 2] motion field of what the event camera sees (None: a plane alone,
-        whose flow the sampler computes itself)."""
+    def motion(self, pose: Pose, twist: Twist, poses: tuple[Pose, ...],
+               twists: tuple[Twist, ...]) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """float64[H, W, 2] motion field of what the event camera sees and uint8[H, W] the
+        surface ids (None, None: a plane alone, whose flow the sampler computes itself)."""
         if not self.scene.objects:
-            return None
+            return None, None
         gt = surface_truth(self.scene, self.rig.event, pose, twist, poses, twists)
-        return gt.flow.transpose(1, 2, 0).astype(np.float64)
+        return gt.flow.transpose(1, 2, 0).astype(np.float64), gt.ids
 
     def frame(self, renderer: Renderer, t_ns: int) -> FrameSample:
         pose, twist, poses, twists = self.at(t_ns)
@@ -212,13 +212,13 @@ def _run(renderer: Renderer, stage: _Stage, thresholds: ContrastThresholds,
     events, poses, n_events = [], [_pose_row(t, pose)], 0
 
     while t < t_end and not schedule.done():
-        step_s = sampler.propose(log_img, pose, twist, stage.flow(*state))
+        step_s = sampler.propose(log_img, pose, twist, *stage.motion(*state))
         while True:
             t_new = min(t + max(1, int(round(step_s * 1e9))), t_end)
             new_state = stage.at(t_new)
             new_log = log_intensity(renderer.render("lr", new_state[0], new_state[2]),
                                     ev_cfg.log_eps)
-            change = float(np.abs(new_log - log_img).max())
+            change = sampler.change(log_img, new_log)
             step_s = sampler.review(change, (t_new - t) * 1e-9)
             if step_s is None:
                 break

@@ -14,13 +14,16 @@ predicted change of recent steps), the caller renders the sample and reports the
 largest change, and a step exceeding ``lambda C`` is retried shorter. Accepted steps thus
 satisfy the bound by construction, except at ``min_step_s``.
 
-With moving objects the prediction uses the exact flow of each pixel's visible surface.
-Where one surface passes in front of another the image is not continuous in time: a
-sub-pixel sample that changes surface changes its pixel by a finite amount in an
-arbitrarily short step. The review then keeps shortening a rejected step only while the
-change shrinks with it; a change that stays when the step shrinks is a jump at an
-occlusion boundary and is accepted (counted in ``jumps``), so such steps cannot drive the
-sampler down to ``min_step_s`` for the rest of the sequence.
+With moving objects the image is not continuous where one surface passes in front of
+another: a sub-pixel sample that changes surface changes its pixel by a finite amount in an
+arbitrarily short step, so no step bounds the change there and a verify step that insists
+drives the sampler to ``min_step_s`` for the rest of the sequence. Such steps are bounded as
+ESIM bounds all of them, by motion: the surfaces' exact flow (known from the geometry) moves
+no occlusion boundary by more than ``max_edge_step_px`` per step. Everywhere else the
+prediction and the verify step work as for a plane, with two changes: the gradient is not
+taken across a boundary (neighbours on different surfaces), and the verified change leaves
+out the band of pixels around the boundaries and at the image border (where objects enter),
+which the motion bound covers instead.
 
 Gradient bound used by the prediction: ``|u| Gx + |v| Gy``, where ``Gx`` is the larger
 one-sided difference of ``L`` along x over the rows y-1..y+1 (and ``Gy`` likewise), so that
@@ -40,10 +43,8 @@ from esim_lite.geometry.pose import Pose, Twist
 
 #: Proposed steps aim at this fraction of the allowed change, leaving room for error.
 SAFETY = 0.8
-#: With moving objects, a retry at most this fraction of the rejected step ...
-JUMP_SHRINK = 0.6
-#: ... that keeps at least this fraction of its change is a jump, not a fast change.
-JUMP_KEEP = 0.7
+#: Half-width (px) of the band around occlusion boundaries left out of the verified change.
+BAND_PX = 2
 
 
 @dataclass(frozen=True)
@@ -55,30 +56,41 @@ class SamplingConfig:
         contrast_fraction: lambda: the largest per-step log change allowed, as a fraction of
             the smallest contrast threshold.
         min_step_s, max_step_s: bounds on the time between samples.
+        max_edge_step_px: with moving objects, the farthest an occlusion boundary may move
+            in one step (pixels, from the exact flow of the surfaces on either side).
     """
 
     adaptive: bool = True
     contrast_fraction: float = 0.5
     min_step_s: float = 2e-5
     max_step_s: float = 5e-3
+    max_edge_step_px: float = 0.5
 
     def __post_init__(self) -> None:
         if not 0 < self.contrast_fraction <= 1:
             raise ValueError("contrast_fraction must be in (0, 1]")
         if not 0 < self.min_step_s <= self.max_step_s:
             raise ValueError("need 0 < min_step_s <= max_step_s")
+        if not self.max_edge_step_px > 0:
+            raise ValueError("max_edge_step_px must be positive")
 
 
-def log_change_rate_bound(log_img: np.ndarray, flow: np.ndarray) -> np.ndarray:
+def log_change_rate_bound(log_img: np.ndarray, flow: np.ndarray,
+                          ids: np.ndarray | None = None) -> np.ndarray:
     """float64[H, W] predicted ``|dL/dt|`` bound (log units/s) at every pixel (reference).
 
     Args:
         log_img: float32[H, W] log intensity.
         flow: float64[H, W, 2] pixel velocity (px/s), e.g. from :func:`motion_field`.
+        ids: uint8[H, W] visible surface per pixel; differences between neighbours on
+            different surfaces are left out (an occlusion boundary is not a gradient).
     """
     lg = log_img.astype(np.float64)
     dx = np.abs(np.diff(lg, axis=1))
     dy = np.abs(np.diff(lg, axis=0))
+    if ids is not None:
+        dx[ids[:, 1:] != ids[:, :-1]] = 0.0
+        dy[ids[1:] != ids[:-1]] = 0.0
     gx = np.zeros_like(lg)
     gy = np.zeros_like(lg)
     gx[:, :-1] = dx
@@ -153,6 +165,37 @@ def max_log_change_rate(log_img, fx, fy, cx, cy, r_z, t_z, v_c, w_c):
     return best
 
 
+def boundary_band(ids: np.ndarray, width: int = BAND_PX) -> np.ndarray:
+    """bool[H, W]: pixels within ``width`` of an occlusion boundary (neighbours on different
+    surfaces) or of the image border."""
+    edge = np.zeros(ids.shape, bool)
+    dx = ids[:, 1:] != ids[:, :-1]
+    dy = ids[1:] != ids[:-1]
+    edge[:, 1:] |= dx
+    edge[:, :-1] |= dx
+    edge[1:] |= dy
+    edge[:-1] |= dy
+    band = maximum_filter(edge, size=2 * width + 1, mode="constant", cval=False) if \
+        edge.any() else edge
+    band[:width] = band[-width:] = True
+    band[:, :width] = band[:, -width:] = True
+    return band
+
+
+def edge_speed(flow: np.ndarray, ids: np.ndarray) -> float:
+    """Largest flow magnitude (px/s) of the pixels on either side of an occlusion boundary."""
+    edge = np.zeros(ids.shape, bool)
+    dx = ids[:, 1:] != ids[:, :-1]
+    dy = ids[1:] != ids[:-1]
+    edge[:, 1:] |= dx
+    edge[:, :-1] |= dx
+    edge[1:] |= dy
+    edge[:-1] |= dy
+    if not edge.any():
+        return 0.0
+    return float(np.sqrt((flow[edge] ** 2).sum(-1)).max())
+
+
 class AdaptiveSampler:
     """Proposes the next step for one camera and reviews the realised change."""
 
@@ -162,45 +205,59 @@ class AdaptiveSampler:
         self.budget = config.contrast_fraction * float(min_threshold)
         self.gain = 1.0
         self.rejected = 0
-        self.jumps = 0
+        self.edge_limited = 0
         self._rate = 0.0
-        self._dynamic = False
-        self._tried: tuple[float, float] | None = None
+        self._band: np.ndarray | None = None
 
     def propose(self, log_img: np.ndarray, pose: Pose, twist: Twist,
-                flow: np.ndarray | None = None) -> float:
+                flow: np.ndarray | None = None, ids: np.ndarray | None = None) -> float:
         """Seconds to the next sample, from the current log image and the motion.
 
         Args:
             flow: float64[H, W, 2] exact motion field of the visible surfaces (px/s), for
                 scenes whose objects move on their own; None: the static plane's field,
                 computed here from the camera's ``pose`` and ``twist``.
+            ids: uint8[H, W] the visible surface of every pixel (with ``flow``).
         """
         cfg = self.config
+        self._band = None
         if not cfg.adaptive:
             return cfg.max_step_s
-        self._dynamic, self._tried = flow is not None, None
+        edge_dt = np.inf
         if flow is not None:
-            self._rate = float(log_change_rate_bound(log_img, flow).max())
+            if ids is None:
+                raise ValueError("propose: a flow for moving objects needs the surface ids")
+            self._rate = float(log_change_rate_bound(log_img, flow, ids).max())
+            self._band = boundary_band(ids)
+            speed = edge_speed(flow, ids)
+            if speed > 0:
+                edge_dt = cfg.max_edge_step_px / speed
         else:
             cam = self.camera
             v_c, w_c = twist.in_camera(pose)
             self._rate = max_log_change_rate(log_img, cam.fx, cam.fy, cam.cx, cam.cy,
                                              np.ascontiguousarray(pose.r_wc[2]),
                                              float(pose.t_wc[2]), v_c, w_c)
-        if self._rate <= 0:
-            return cfg.max_step_s
-        dt = SAFETY * self.budget / (self.gain * self._rate)
-        return float(np.clip(dt, cfg.min_step_s, cfg.max_step_s))
+        dt = SAFETY * self.budget / (self.gain * self._rate) if self._rate > 0 else np.inf
+        if edge_dt < dt and edge_dt < cfg.max_step_s:
+            self.edge_limited += 1
+        return float(np.clip(min(dt, edge_dt), cfg.min_step_s, cfg.max_step_s))
+
+    def change(self, log_before: np.ndarray, log_after: np.ndarray) -> float:
+        """The largest ``|L1 - L0|`` that the review checks: every pixel for a plane; with
+        moving objects, every pixel outside the band around the occlusion boundaries and
+        the image border seen at the proposal (the motion bound covers that band)."""
+        diff = np.abs(log_after - log_before)
+        if self._band is not None:
+            diff = np.where(self._band, 0.0, diff)
+        return float(diff.max())
 
     def review(self, change: float, dt_s: float) -> float | None:
-        """Report a rendered step's largest ``|L1 - L0|``; None accepts it, else retry with
-        the returned (shorter) step in seconds."""
+        """Report a rendered step's :meth:`change`; None accepts it, else retry with the
+        returned (shorter) step in seconds."""
         cfg = self.config
         if not cfg.adaptive:
             return None
-        if self._dynamic:
-            return self._review_dynamic(change, dt_s)
         if self._rate > 0 and dt_s > 0:
             observed = change / (self._rate * dt_s)
             self.gain = observed if observed > self.gain else 0.8 * self.gain + 0.2 * observed
@@ -208,25 +265,4 @@ class AdaptiveSampler:
         if change <= self.budget or dt_s <= cfg.min_step_s * (1 + 1e-9):
             return None
         self.rejected += 1
-        return max(cfg.min_step_s, dt_s * SAFETY * self.budget / change)
-
-    def _review_dynamic(self, change: float, dt_s: float) -> float | None:
-        """The review with moving objects, whose edges (and the lines where surfaces cross)
-        make the image jump: a sub-pixel sample that changes surface changes its pixel by a
-        finite amount however short the step. A retry that shortens the step by at least
-        :data:`JUMP_SHRINK` but keeps at least :data:`JUMP_KEEP` of the change is such a
-        jump: it is accepted (no step would resolve it). The gain stays 1 (ESIM's rule as it
-        is): jumps of every size below the budget would otherwise teach it that every step
-        overshoots."""
-        cfg = self.config
-        tried, self._tried = self._tried, None
-        jump = tried is not None and dt_s <= JUMP_SHRINK * tried[0] and \
-            change >= JUMP_KEEP * tried[1]
-        if jump:
-            self.jumps += 1
-            return None
-        if change <= self.budget or dt_s <= cfg.min_step_s * (1 + 1e-9):
-            return None
-        self.rejected += 1
-        self._tried = (dt_s, change)
         return max(cfg.min_step_s, dt_s * SAFETY * self.budget / change)

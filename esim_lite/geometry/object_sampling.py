@@ -6,7 +6,10 @@ through a random image point (some outside the view, so objects enter and leave 
 depth between the camera and the background, the patch roughly facing the camera with a
 random tilt and roll. From there each follows a persistent random walk of control poses
 (the camera trajectory's machinery), kept at heights between the background and the
-camera's lowest point, so objects always stay in front of the background.
+camera's lowest point, so objects always stay in front of the background, and folded back
+(like a billiard ball) into the view widened by ``view_margin`` as the camera sees it at each
+control point's time: objects leave the view and come back, so a static camera keeps
+seeing motion for the whole sequence.
 """
 
 from __future__ import annotations
@@ -47,7 +50,8 @@ class ObjectsConfig:
         max_tilt_deg: largest angle between a patch's normal and the optical axis at the start.
         knot_spacing_s: control-point spacing of the objects' trajectories.
         direction_persistence: 0..1, how much each step keeps the previous direction.
-        view_margin: object centres start up to this fraction of the image size outside it.
+        view_margin: object centres stay within this fraction of the image size outside
+            the view (they start there, leave the view and come back).
     """
 
     count: tuple[int, int] = (0, 0)
@@ -203,7 +207,7 @@ def sample_objects(config: ObjectsConfig, n: int, duration_s: float, camera: Int
         start = _start_pose(config, camera, cam0, depth, rng)
         z_lo = (1 - config.depth_fraction[1]) * h_min
         z_hi = (1 - config.depth_fraction[0]) * h_min
-        traj = _walk(config, start, duration_s, (z_lo, z_hi), rng)
+        traj = _walk(config, start, duration_s, (z_lo, z_hi), camera, cam_trajectory, rng)
         nearest = min(depth, config.depth_fraction[0] * h_min)  # closest it can come
         tex_w = max(16, int(np.ceil(w_m * finest_fx / nearest)))
         tex_h = max(16, int(round(tex_w * h_m / w_m)))
@@ -214,9 +218,11 @@ def sample_objects(config: ObjectsConfig, n: int, duration_s: float, camera: Int
 
 
 def _walk(config: ObjectsConfig, start: Pose, duration_s: float, z_range: tuple[float, float],
-          rng: np.random.Generator) -> BSplineTrajectory:
-    """Control poses of a persistent random walk from ``start``, heights kept in
-    ``z_range`` (reflected)."""
+          camera: Intrinsics, cam_trajectory: BSplineTrajectory, rng: np.random.Generator
+          ) -> BSplineTrajectory:
+    """Control poses of a persistent random walk from ``start``: heights kept in
+    ``z_range`` (reflected), centres folded into the widened view of the camera at each
+    control point's time."""
     dt = config.knot_spacing_s
     n = int(math.ceil(duration_s / dt)) + 3
     trans = persistent_walk(n, 3, config.speed_m_s, dt, config.direction_persistence, rng)
@@ -232,7 +238,25 @@ def _walk(config: ObjectsConfig, start: Pose, duration_s: float, z_range: tuple[
             p = p + trans[k]
             p[2] = reflect(p[2], z_lo, z_hi)
             r = r @ so3_exp(rot[k])
-        positions.append(p.copy())
+        # control point k shapes the curve around time (k - 1) * dt
+        cam = cam_trajectory.pose(min(max((k - 1) * dt, 0.0), cam_trajectory.duration_s))
+        positions.append(_fold_into_view(p, cam, camera, config.view_margin))
         rotations.append(r.copy())
     return BSplineTrajectory(np.array(positions), np.array(rotations), dt, duration_s)
 
+
+def _fold_into_view(point: np.ndarray, cam: Pose, camera: Intrinsics, margin: float
+                    ) -> np.ndarray:
+    """``point`` with its image position folded into the view widened by ``margin`` (a
+    fraction of the image size per side), its depth kept."""
+    p_c = cam.r_cw @ (point - cam.t_wc)
+    z = float(p_c[2])
+    if z <= 0:
+        return point.copy()
+    x_lo = (-margin * camera.width - 0.5 - camera.cx) / camera.fx
+    x_hi = ((1 + margin) * camera.width - 0.5 - camera.cx) / camera.fx
+    y_lo = (-margin * camera.height - 0.5 - camera.cy) / camera.fy
+    y_hi = ((1 + margin) * camera.height - 0.5 - camera.cy) / camera.fy
+    folded = np.array([reflect(p_c[0] / z, x_lo, x_hi) * z,
+                       reflect(p_c[1] / z, y_lo, y_hi) * z, z])
+    return cam.r_wc @ folded + cam.t_wc
