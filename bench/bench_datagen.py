@@ -3,10 +3,14 @@
 Run: .venv/bin/python bench/bench_datagen.py [--quick]
      .venv/bin/python bench/bench_datagen.py --ratio [--n-seq N] [--repeats R]
      .venv/bin/python bench/bench_datagen.py --ratio --compare-code DIR
+     .venv/bin/python bench/bench_datagen.py --dynamic configs/datagen_dynamic.yaml [--n-seq N]
 ``--ratio``: the same N default sequences generated with each backend, runs interleaved
 (homography, Mitsuba, homography, ...; this VM drifts), per worker count: median seconds
 and Mitsuba / homography. With ``--compare-code DIR`` it also runs another checkout (e.g. a
 git worktree of an older commit) in the same rotation: before/after a change.
+``--dynamic CONFIG``: N sequences of today's single-plane homography dataset against N of
+CONFIG (moving objects, Mitsuba) with and without its ground truth, interleaved, one
+worker: the cost of dynamic scenes per sequence.
 Each case runs ``datagen generate`` as a child process into a fresh temporary folder and
 reports sequences/min, events/s (simulated events per wall second), the peak RSS of the
 largest process of the run (``getrusage(RUSAGE_CHILDREN)``: with workers, a worker or the
@@ -41,17 +45,21 @@ def stored_mb(folder: Path) -> dict[str, float]:
                     sizes["events"] = sizes.get("events", 0) + g["events"][k].id.get_storage_size()
                 for cam in g["frames"]:
                     ds = g["frames"][cam]
-                    if ds.ndim == 3:
+                    if ds.ndim >= 3:  # images, and ground truth (flow [T,2,H,W])
                         sizes[cam] = sizes.get(cam, 0) + ds.id.get_storage_size()
     return {k: v / 1e6 for k, v in sizes.items()}
 
 
 def run_case(n_seq: int, workers: int, sets: list[str], scale: str = "2",
-             code: Path | None = None) -> dict:
+             code: Path | None = None, config: str | None = None, seed: int = 0) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "shards"
         cmd = [sys.executable, "-m", "datagen.cli", "generate", "--n-seq", str(n_seq),
                "--out", str(out), "--workers", str(workers), "--scale", scale, "--no-progress"]
+        if config:
+            cmd += ["--config", config]
+        if seed:
+            cmd += ["--seed", str(seed)]
         for s in sets:
             cmd += ["--set", s]
         before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
@@ -84,7 +92,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", default="1,2", help="worker counts for --ratio")
     parser.add_argument("--compare-code", type=Path, metavar="DIR",
                         help="with --ratio: also the checkout in DIR, same rotation")
+    parser.add_argument("--dynamic", metavar="CONFIG",
+                        help="homography plane datasets against CONFIG's (Mitsuba, objects)")
+    parser.add_argument("--seed", type=int, default=0, help="dataset seed for --dynamic")
     args = parser.parse_args(argv)
+    if args.dynamic:
+        return dynamic(args.dynamic, args.n_seq, args.repeats, args.seed)
     if args.ratio or args.compare_code:
         return ratio(args.n_seq, args.repeats, [int(w) for w in args.workers.split(",")],
                      args.compare_code)
@@ -154,6 +167,37 @@ def ratio(n: int, repeats: int, workers: list[int], other: Path | None) -> int:
                 print(f"| {label} | {w} | {backend} | {n} | {med[backend]:.1f} | {runs} | "
                       f"{n / med[backend] * 60:.1f} | {events[(label, backend)]:,} | {tail} |",
                       flush=True)
+    return 0
+
+
+def dynamic(config: str, n: int, repeats: int, seed: int) -> int:
+    """Today's plane dataset (homography) against ``config`` with and without ground truth,
+    runs interleaved, one worker; medians and ratios to the plane dataset."""
+    import statistics
+
+    cases = {"plane, homography (today)": (None, ["simulation.render.backend=homography"]),
+             f"{config}": (config, []),
+             f"{config}, no ground truth": (config, ["simulation.frames.ground_truth=[]"])}
+    print(f"# {' '.join(['python'] + sys.argv)}")
+    print(f"# {machine()}; {n} sequences per run, seed {seed}, 1 worker, {repeats} runs")
+    times: dict[str, list[float]] = {}
+    last: dict[str, dict] = {}
+    for _ in range(repeats):
+        for label, (cfg, sets) in cases.items():
+            r = run_case(n, 1, sets, config=cfg, seed=seed)
+            times.setdefault(label, []).append(r["seconds"])
+            last[label] = r
+    base = statistics.median(times["plane, homography (today)"])
+    print("| dataset | seconds (median) | runs | s per sequence | x plane homography | events "
+          "| frames | MB/seq |")
+    print("|---|---|---|---|---|---|---|---|")
+    for label in cases:
+        med = statistics.median(times[label])
+        r = last[label]
+        runs = ", ".join(f"{t:.1f}" for t in times[label])
+        print(f"| {label} | {med:.1f} | {runs} | {med / n:.1f} | {med / base:.2f} | "
+              f"{r['events']:,} | {r['frames']} | {sum(r['mb_per_seq'].values()):.2f} |",
+              flush=True)
     return 0
 
 

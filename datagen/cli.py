@@ -103,10 +103,12 @@ def build_parser() -> argparse.ArgumentParser:
                           "(default 1); auto: SLURM_ARRAY_TASK_COUNT")
     gen.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    ins = sub.add_parser("inspect", help="summarise shards")
+    ins = sub.add_parser("inspect", help="summarise shards (events, frames, objects, "
+                         "ground truth, stored bytes)")
     ins.add_argument("target", help="a shard file or a folder of shards")
 
-    pre = sub.add_parser("preview", help="a PNG per sequence: frames, events, SBN stack")
+    pre = sub.add_parser("preview", help="a PNG per sequence: frames, events, SBN stack "
+                         "(and flow and surface ids when the shard holds them)")
     pre.add_argument("target", help="a shard file or a folder of shards")
     pre.add_argument("--out", help="output folder (default: <target folder>/preview)")
 

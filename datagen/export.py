@@ -8,6 +8,10 @@
   ``num_pos``, ``num_neg``, ``duration``, ``t0``, ``tk``, ``num_imgs``, ``num_flow``. The HR
   frames go beside ``images/`` under their camera's name (``hr_x2/image%09d``, same
   attributes); thresholds, intrinsics and frame poses go in root attributes and ``poses``.
+  A shard with flow ground truth adds the packager's ``flow/flow%09d``: float32 [2, H, W]
+  of the event camera at each frame (px/s, channel 0 = x) with ``size``, ``timestamp``
+  and ``event_idx`` (the images' rule), the group attribute ``num_images`` and the root
+  ``num_flow`` (0 without flow); the HR flow beside it as ``flow_hr_x2/flow%09d``.
 - ``evreal``: a ``<shard>_<seq>/`` folder of EVREAL's ``.npy`` files: ``events_ts`` float64
   seconds, ``events_xy`` int16 [N, 2], ``events_p`` uint8 0/1, ``images`` uint8
   [T, H, W, 1], ``images_ts`` float64 [T, 1], ``image_event_indices`` int64 [T, 1]
@@ -80,6 +84,7 @@ def _write_event_utils(rec: SequenceRecord, target: Path) -> Path:
                 ds = f.create_dataset(f"{group}/image{k:09d}", data=img)
                 ds.attrs.update({"size": img.shape, "timestamp": t, "type": "greyscale",
                                  "event_idx": max(0, int(np.searchsorted(ts, t)) - 1)})
+        n_flow = _write_event_utils_flow(f, rec, ts)
         n_pos = int((ev.p > 0).sum())
         meta = _metadata(rec)
         f.attrs.update({"sensor_resolution": list(ev.sensor_hw), "num_events": len(ev),
@@ -87,12 +92,30 @@ def _write_event_utils(rec: SequenceRecord, target: Path) -> Path:
                         "t0": float(ts[0]) if len(ts) else 0.0,
                         "tk": float(ts[-1]) if len(ts) else 0.0,
                         "duration": float(ts[-1] - ts[0]) if len(ts) else 0.0,
-                        "num_imgs": len(rec.frames["lr"].t_ns), "num_flow": 0,
+                        "num_imgs": len(rec.frames["lr"].t_ns), "num_flow": n_flow,
                         "contrast_threshold_pos": meta["contrast_threshold_pos"],
                         "contrast_threshold_neg": meta["contrast_threshold_neg"],
                         "cameras": json.dumps(meta["cameras"])})
         f.create_dataset("poses", data=rec.frame_poses)  # t, tx, ty, tz, qx, qy, qz, qw
     return target
+
+
+def _write_event_utils_flow(f: h5py.File, rec: SequenceRecord, ts: np.ndarray) -> int:
+    """Each camera's stored flow at each frame as event_utils' packager writes flow
+    (``package_flow``, ``set_data_available``, ``add_event_indices``): ``flow/`` for the
+    event camera, ``flow_<camera>/`` for the HR ones. Returns the LR flow count."""
+    for camera, truth in rec.ground_truth.items():
+        if "flow" not in truth:
+            continue
+        group = f.create_group("flow" if camera == "lr" else f"flow_{camera}")
+        group.attrs["num_images"] = len(truth["flow"])
+        for k, (flow, t_ns) in enumerate(zip(truth["flow"], rec.frames[camera].t_ns)):
+            t = t_ns * 1e-9
+            ds = group.create_dataset(f"flow{k:09d}", data=np.asarray(flow, np.float32))
+            ds.attrs.update({"size": flow.shape, "timestamp": t,
+                             "event_idx": max(0, int(np.searchsorted(ts, t)) - 1)})
+    lr = rec.ground_truth.get("lr", {})
+    return len(lr["flow"]) if "flow" in lr else 0
 
 
 def _folder(target: Path, fill: Callable[[Path], None]) -> Path:

@@ -157,7 +157,8 @@ def _write_sequence(writer: ShardWriter, sim, textures: TextureSampler, seed: in
     renderer = make_renderer(spec.scene, rig.cameras(), sim.render,
                              sample_footprints(spec.scene, spec.trajectory, rig, sim.render))
     name = renderer.name + (f":{renderer.variant}" if hasattr(renderer, "variant") else "")
-    writer.begin_sequence(spec, rig.cameras(), sim.events.log_eps, name)
+    writer.begin_sequence(spec, rig.cameras(), sim.events.log_eps, name,
+                          sim.frames.ground_truth)
     n_events = n_frames = 0
     try:
         for chunk in simulate(spec.scene, spec.trajectory, spec.thresholds, sim,
@@ -168,7 +169,7 @@ def _write_sequence(writer: ShardWriter, sim, textures: TextureSampler, seed: in
                 writer.append_events(ev.slice(done, cut))
                 done = cut
                 writer.append_frame(frame.t_ns, np.concatenate(
-                    [[frame.t_ns * 1e-9], frame.pose.to_tq()]), frame.images)
+                    [[frame.t_ns * 1e-9], frame.pose.to_tq()]), frame.images, frame.truth)
             writer.append_events(ev.slice(done, len(ev)))
             writer.append_poses(chunk.sample_poses)
             n_events += len(ev)

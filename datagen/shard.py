@@ -8,7 +8,9 @@ files those tools' loaders open as they are):
 seq_000012/                      attrs: sensor_resolution [H, W], num_events, num_pos,
                                         num_neg, duration, t0, index, seed, log_eps,
                                         contrast_threshold_pos, contrast_threshold_neg,
-                                        renderer, texture, frame_dtype
+                                        renderer, texture, frame_dtype; with moving
+                                        objects in the config also num_objects,
+                                        static_camera
   events/xs, ys      int16[N]    column, row
   events/ts          float64[N]  seconds (exact to the nanosecond for t < 10^6 s)
   events/ps          uint8[N]    1 = ON (brighter), 0 = OFF
@@ -17,10 +19,19 @@ seq_000012/                      attrs: sensor_resolution [H, W], num_events, nu
   frames/ts          float64[T]  seconds
   frames/event_idx   int64[T]    index of the first event after each frame
   frames/poses       float64[T,8] t, tx, ty, tz, qx, qy, qz, qw at each frame
+  frames/flow_<cam>  float32[T,2,h,w] ground truth (only the kinds frames.ground_truth
+                                  lists, for every camera): instantaneous optical flow of
+                                  the visible surface, px/s, channel 0 = x
+  frames/depth_<cam> float32[T,h,w] metres along the optical axis
+  frames/ids_<cam>   uint8[T,h,w] visible surface: 0 background, k + 1 object k
   poses              float64[S,8] the same at every render sample (adaptive time grid)
   cameras/<name>     attrs fx, fy, cx, cy, width, height (lr, hr_x2, ...)
   scene              attrs width_m, height_m, texture_hw; plane z = 0, normal +z
   trajectory/        positions [K,3], rotations [K,3,3], attr knot_spacing_s, duration_s
+  objects/obj_000/   one group per object (obj_k has surface id k + 1): positions [K,3],
+                     rotations [K,3,3] (object-to-world B-spline), alpha uint8[h,w]
+                     (round(255 a), exact for 0/1 masks); attrs knot_spacing_s, duration_s,
+                     width_m, height_m, texture (provenance), texture_hw
   thresholds/        pos_map, neg_map float32[H,W] (only when per-pixel mismatch is on)
 / (file)             attrs: schema_version, config (resolved YAML), complete, versions (JSON:
                      the library versions that shape the bytes, see library_versions; absent
@@ -29,13 +40,16 @@ seq_000012/                      attrs: sensor_resolution [H, W], num_events, nu
 ```
 
 Frames are stored as float16 when its rounding (relative 2^-12) changes ``log(eps + I)`` by
-at most 1% of the sequence's smallest contrast threshold, otherwise as float32.
+at most 1% of the sequence's smallest contrast threshold, otherwise as float32. Ground truth
+is stored as the simulator computed it (no rounding), gzip-compressed like the frames.
+A configuration without objects and without ground truth writes none of the optional
+attributes, groups or datasets, so its shards are what they were before these existed.
 """
 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -50,15 +64,21 @@ from esim_lite.core.events import Events
 from esim_lite.core.frames import Frames
 from esim_lite.events.thresholds import ContrastThresholds
 from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.objects import DynamicScene
 from esim_lite.geometry.trajectory import BSplineTrajectory
 
 if TYPE_CHECKING:
     from datagen.sampling import SequenceSpec
+    from esim_lite.geometry.visibility import SurfaceTruth
 
 SCHEMA_VERSION = 1
 FLOAT16_LOG_ERROR = 2.0**-12  # max |log(eps + I16) - log(eps + I)| for normal float16
 EVENT_CHUNK = 1 << 16
 _COMPRESSION = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+#: Per-pixel ground truth a shard can hold (``frames.ground_truth``), in storage order.
+GROUND_TRUTH_KINDS = ("flow", "depth", "ids")
+_GROUND_TRUTH_DTYPE = {"flow": np.dtype(np.float32), "depth": np.dtype(np.float32),
+                       "ids": np.dtype(np.uint8)}
 
 
 def frame_dtype(min_threshold: float) -> np.dtype:
@@ -68,6 +88,16 @@ def frame_dtype(min_threshold: float) -> np.dtype:
 
 def sequence_name(index: int) -> str:
     return f"seq_{index:06d}"
+
+
+def ground_truth_name(kind: str, camera: str) -> str:
+    """Name of one camera's ground truth dataset under ``frames/``, e.g. ``flow_lr``."""
+    return f"{kind}_{camera}"
+
+
+def object_name(k: int) -> str:
+    """Name of object ``k``'s group under ``objects/`` (its surface id is ``k + 1``)."""
+    return f"obj_{k:03d}"
 
 
 def find_shards(target: str | Path) -> list[Path]:
@@ -130,9 +160,20 @@ class ShardWriter:
         self._group: h5py.Group | None = None
 
     def begin_sequence(self, spec: SequenceSpec, cameras: dict[str, Intrinsics],
-                       log_eps: float, renderer: str) -> None:
-        """Start the group of sequence ``spec.index`` (its scene, trajectory, thresholds and
-        seed come from the spec; ``renderer`` names the backend that made its frames)."""
+                       log_eps: float, renderer: str,
+                       ground_truth: tuple[str, ...] = ()) -> None:
+        """Start the group of sequence ``spec.index`` (its scene, objects, trajectory,
+        thresholds and seed come from the spec; ``renderer`` names the backend that made its
+        frames; ``ground_truth``: the kinds of :data:`GROUND_TRUTH_KINDS` every frame
+        carries, for every camera).
+
+        Raises:
+            ValueError: an unknown ground truth kind.
+        """
+        unknown = [k for k in ground_truth if k not in GROUND_TRUTH_KINDS]
+        if unknown:
+            raise ValueError(f"unknown ground truth kind(s) {unknown} (expected any of "
+                             f"{', '.join(GROUND_TRUTH_KINDS)})")
         index, seed, thresholds = spec.index, spec.seed, spec.thresholds
         texture, trajectory = spec.texture_name, spec.trajectory
         scene_size_m = (spec.background.width_m, spec.background.height_m)
@@ -158,6 +199,13 @@ class ShardWriter:
             c = g.create_group(f"cameras/{name}")
             c.attrs.update({k: getattr(cam, k) for k in ("fx", "fy", "cx", "cy", "width",
                                                          "height")})
+        self._truth = tuple(k for k in GROUND_TRUTH_KINDS if k in ground_truth)
+        for name, cam in cameras.items():
+            for kind in self._truth:
+                shape = (2, cam.height, cam.width) if kind == "flow" else (cam.height, cam.width)
+                fr.create_dataset(ground_truth_name(kind, name), (0, *shape),
+                                  _GROUND_TRUTH_DTYPE[kind], maxshape=(None, *shape),
+                                  chunks=(1, *shape), **_COMPRESSION)
         fr.create_dataset("ts", (0,), np.float64, maxshape=(None,))
         fr.create_dataset("event_idx", (0,), np.int64, maxshape=(None,))
         fr.create_dataset("poses", (0, 8), np.float64, maxshape=(None, 8))
@@ -170,12 +218,32 @@ class ShardWriter:
         tr.create_dataset("rotations", data=trajectory.rotations)
         tr.attrs.update({"knot_spacing_s": trajectory.knot_spacing_s,
                          "duration_s": trajectory.duration_s})
+        if isinstance(spec.scene, DynamicScene):  # a configuration with moving objects
+            self._write_objects(g, spec)
         if thresholds.has_mismatch:
             th = g.create_group("thresholds")
             th.create_dataset("pos_map", data=thresholds.pos_map.astype(np.float32))
             th.create_dataset("neg_map", data=thresholds.neg_map.astype(np.float32))
         self._n_events = self._n_pos = self._n_pending = 0
         self._pending: list[Events] = []
+
+    @staticmethod
+    def _write_objects(g: h5py.Group, spec: SequenceSpec) -> None:
+        """``num_objects``, ``static_camera`` and one ``objects/obj_XXX`` group per object:
+        its trajectory, size, alpha shape and texture provenance."""
+        g.attrs.update({"num_objects": len(spec.objects),
+                        "static_camera": bool(spec.static_camera)})
+        for k, obj in enumerate(spec.objects):
+            o = g.create_group(f"objects/{object_name(k)}")
+            tr = obj.trajectory
+            o.create_dataset("positions", data=tr.positions)
+            o.create_dataset("rotations", data=tr.rotations)
+            alpha = np.round(np.clip(obj.alpha, 0.0, 1.0) * 255.0).astype(np.uint8)
+            o.create_dataset("alpha", data=alpha, chunks=alpha.shape, **_COMPRESSION)
+            o.attrs.update({"knot_spacing_s": tr.knot_spacing_s, "duration_s": tr.duration_s,
+                            "width_m": obj.surface.width_m, "height_m": obj.surface.height_m,
+                            "texture": obj.name,
+                            "texture_hw": list(obj.surface.texture.shape)})
 
     @staticmethod
     def _append(ds: h5py.Dataset, values: np.ndarray) -> None:
@@ -212,12 +280,29 @@ class ShardWriter:
         self._append(ev["ts"], batch.t_ns * 1e-9)
         self._append(ev["ps"], (batch.p > 0).astype(np.uint8))
 
-    def append_frame(self, t_ns: int, pose_row: np.ndarray, images: dict[str, np.ndarray]
-                     ) -> None:
-        """Add one frame; call after appending every event up to ``t_ns``."""
+    def append_frame(self, t_ns: int, pose_row: np.ndarray, images: dict[str, np.ndarray],
+                     truth: dict[str, SurfaceTruth] | None = None) -> None:
+        """Add one frame; call after appending every event up to ``t_ns``. ``truth``: each
+        camera's ground truth at the frame, required when the sequence stores some (the
+        kinds it was begun with; the others are not written).
+
+        Raises:
+            ValueError: the sequence stores ground truth and ``truth`` lacks a camera.
+        """
         fr = self._group["frames"]
         for name, img in images.items():
             self._append(fr[name], img[None].astype(self._dtype))
+        if self._truth:
+            missing = [n for n in images if truth is None or n not in truth]
+            if missing:
+                raise ValueError(f"frame at {t_ns} ns: no ground truth for camera(s) "
+                                 f"{', '.join(missing)}, which this sequence stores "
+                                 f"({', '.join(self._truth)})")
+            for name in images:
+                for kind in self._truth:
+                    value = getattr(truth[name], kind)
+                    self._append(fr[ground_truth_name(kind, name)],
+                                 np.asarray(value, _GROUND_TRUTH_DTYPE[kind])[None])
         self._append(fr["ts"], np.array([t_ns * 1e-9]))
         self._append(fr["event_idx"], np.array([self._n_events], np.int64))
         self._append(fr["poses"], pose_row[None])
@@ -252,7 +337,9 @@ class SequenceSummary:
     """What one stored sequence is, in numbers (``datagen inspect``, previews, checks).
 
     ``frame_hw`` and ``stored_bytes`` are keyed by camera (``lr`` first, then HR by scale);
-    ``stored_bytes`` also has ``events``: compressed bytes on disk.
+    ``stored_bytes`` also has ``events`` and each stored ground truth kind (all cameras
+    together): compressed bytes on disk. ``num_objects`` is None for a sequence of a
+    configuration without moving objects; ``ground_truth`` lists the kinds stored.
     """
 
     name: str
@@ -273,6 +360,9 @@ class SequenceSummary:
     renderer: str
     texture: str
     stored_bytes: dict[str, int]
+    num_objects: int | None = None
+    static_camera: bool = False
+    ground_truth: tuple[str, ...] = ()
 
 
 def _stored_bytes(node: h5py.Group | h5py.Dataset) -> int:
@@ -290,8 +380,30 @@ def _stored_bytes(node: h5py.Group | h5py.Dataset) -> int:
 
 
 @dataclass(frozen=True, eq=False)
+class StoredObject:
+    """One moving object of a stored sequence: enough to rebuild its shape and motion (the
+    texture itself is not stored, only where it came from).
+
+    Attributes:
+        trajectory: object-to-world poses over the sequence.
+        width_m, height_m: the patch's size.
+        alpha: float32[h, w] in [0, 1] on the texture's grid (stored as 8 bits).
+        texture: the texture's provenance.
+        texture_hw: the texture's size in texels.
+    """
+
+    trajectory: BSplineTrajectory
+    width_m: float
+    height_m: float
+    alpha: np.ndarray
+    texture: str
+    texture_hw: tuple[int, int]
+
+
+@dataclass(frozen=True, eq=False)
 class SequenceRecord:
-    """One sequence read back from a shard (see the module doc for the fields)."""
+    """One sequence read back from a shard (see the module doc for the fields);
+    ``ground_truth[camera][kind]`` holds every frame's stored ground truth."""
 
     name: str
     events: Events
@@ -302,6 +414,7 @@ class SequenceRecord:
     cameras: dict[str, Intrinsics]
     thresholds: ContrastThresholds
     attrs: dict
+    ground_truth: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
 
 
 class ShardReader:
@@ -439,13 +552,17 @@ class ShardReader:
         cams = self.frame_names(name)
         stored = {"events": _stored_bytes(g["events"])}
         stored.update({c: _stored_bytes(fr[c]) for c in cams})
+        kinds = self.ground_truth_kinds(name)
+        stored.update({k: sum(_stored_bytes(fr[ground_truth_name(k, c)]) for c in cams
+                              if ground_truth_name(k, c) in fr) for k in kinds})
         return SequenceSummary(
             name, int(a["index"]), int(a["seed"]), self.sensor_hw(name), int(a["num_events"]),
             int(a["num_pos"]), int(a["num_neg"]), float(a["t0"]), float(a["duration"]),
             int(fr["ts"].shape[0]), {c: self.frame_hw(name, c) for c in cams},
             str(a["frame_dtype"]), float(a["contrast_threshold_pos"]),
             float(a["contrast_threshold_neg"]), "thresholds" in g, str(a["renderer"]),
-            str(a["texture"]), stored)
+            str(a["texture"]), stored, self.num_objects(name), self.static_camera(name),
+            kinds)
 
     def cameras(self, name: str) -> dict[str, Intrinsics]:
         g = self._group(name)["cameras"]
@@ -477,9 +594,86 @@ class ShardReader:
 
     def frame_names(self, name: str) -> list[str]:
         """Cameras with frames: ``lr`` first, then the HR ones by scale."""
-        fr = self._group(name)["frames"]
-        names = [n for n in fr if isinstance(fr[n], h5py.Dataset) and fr[n].ndim == 3]
+        g = self._group(name)
+        fr, cams = g["frames"], g["cameras"]
+        names = [n for n in fr if n in cams and isinstance(fr[n], h5py.Dataset)
+                 and fr[n].ndim == 3]
         return sorted(names, key=lambda n: (n != "lr", fr[n].shape[1]))
+
+    def ground_truth_kinds(self, name: str, camera: str = "lr") -> tuple[str, ...]:
+        """The ground truth kinds stored for ``camera`` (in :data:`GROUND_TRUTH_KINDS`
+        order; empty for a shard generated without ``frames.ground_truth``)."""
+        fr = self._group(name)["frames"]
+        return tuple(k for k in GROUND_TRUTH_KINDS if ground_truth_name(k, camera) in fr)
+
+    def ground_truth(self, name: str, camera: str, k: int | None = None
+                     ) -> dict[str, np.ndarray]:
+        """Every stored kind of ``camera``'s ground truth: ``flow`` float32[T, 2, H, W]
+        (px/s, channel 0 = x), ``depth`` float32[T, H, W] (m), ``ids`` uint8[T, H, W]; for
+        frame ``k`` only without the leading T. Empty when none is stored."""
+        fr = self._group(name)["frames"]
+        sl = slice(None) if k is None else k
+        return {kind: fr[ground_truth_name(kind, camera)][sl]
+                for kind in self.ground_truth_kinds(name, camera)}
+
+    def _truth(self, name: str, kind: str, camera: str, k: int | None) -> np.ndarray:
+        fr = self._group(name)["frames"]
+        ds_name = ground_truth_name(kind, camera)
+        if ds_name not in fr:
+            stored = ", ".join(self.ground_truth_kinds(name, camera)) or "none"
+            raise KeyError(f"{self.path}/{name}: no {kind} ground truth for camera "
+                           f"{camera!r} (stored: {stored}); generate with "
+                           f"simulation.frames.ground_truth listing {kind}")
+        return fr[ds_name][slice(None) if k is None else k]
+
+    def flow(self, name: str, camera: str = "lr", k: int | None = None) -> np.ndarray:
+        """float32[T, 2, H, W] optical flow in px/s (channel 0 = x) of ``camera``, or
+        [2, H, W] of frame ``k``.
+
+        Raises:
+            KeyError: the shard holds no flow for that camera.
+        """
+        return self._truth(name, "flow", camera, k)
+
+    def depth(self, name: str, camera: str = "lr", k: int | None = None) -> np.ndarray:
+        """float32[T, H, W] depth along the optical axis in metres (see :meth:`flow`)."""
+        return self._truth(name, "depth", camera, k)
+
+    def ids(self, name: str, camera: str = "lr", k: int | None = None) -> np.ndarray:
+        """uint8[T, H, W] visible surface, 0 = background, k + 1 = object k (see
+        :meth:`flow`)."""
+        return self._truth(name, "ids", camera, k)
+
+    def num_objects(self, name: str) -> int | None:
+        """How many objects move in the sequence (None: its configuration had none)."""
+        n = self._group(name).attrs.get("num_objects")
+        return None if n is None else int(n)
+
+    def static_camera(self, name: str) -> bool:
+        """Whether the camera stands still (only the objects move)."""
+        return bool(self._group(name).attrs.get("static_camera", False))
+
+    def objects(self, name: str) -> tuple[StoredObject, ...]:
+        """The sequence's moving objects in id order (object ``k`` has surface id
+        ``k + 1``); empty without objects."""
+        g = self._group(name)
+        if "objects" not in g:
+            return ()
+        out = []
+        for k in range(len(g["objects"])):
+            o = g["objects"][object_name(k)]
+            a = o.attrs
+            trajectory = BSplineTrajectory(o["positions"][:], o["rotations"][:],
+                                           float(a["knot_spacing_s"]), float(a["duration_s"]))
+            h, w = (int(v) for v in a["texture_hw"])
+            out.append(StoredObject(trajectory, float(a["width_m"]), float(a["height_m"]),
+                                    o["alpha"][:].astype(np.float32) / np.float32(255.0),
+                                    str(a["texture"]), (h, w)))
+        return tuple(out)
+
+    def object_trajectories(self, name: str) -> list[BSplineTrajectory]:
+        """Object-to-world trajectories of the sequence's objects, in id order."""
+        return [o.trajectory for o in self.objects(name)]
 
     def frame(self, name: str, camera: str, k: int, as_stored: bool = False) -> np.ndarray:
         """float32[H, W] frame ``k`` of ``camera`` (``as_stored``: in the file's dtype)."""
@@ -517,7 +711,9 @@ class ShardReader:
     def read(self, name: str) -> SequenceRecord:
         """The whole sequence in memory."""
         g = self._group(name)
-        frames = {c: self.frames(name, c) for c in self.frame_names(name)}
+        cams = self.frame_names(name)
+        frames = {c: self.frames(name, c) for c in cams}
+        truth = {c: gt for c in cams if (gt := self.ground_truth(name, c))}
         return SequenceRecord(name, self.events(name), frames, g["frames/poses"][:],
                               g["frames/event_idx"][:], g["poses"][:], self.cameras(name),
-                              self.thresholds(name), dict(g.attrs))
+                              self.thresholds(name), dict(g.attrs), truth)

@@ -4,7 +4,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from datagen.shard import ShardReader
+from datagen.shard import SequenceSummary, ShardReader
+
+
+def _dynamics(s: SequenceSummary) -> str:
+    """``; 3 objects, static camera; ground truth flow, depth, ids`` (empty for a sequence
+    of a configuration with neither, so its line reads as before)."""
+    text = ""
+    if s.num_objects is not None:
+        text += f"; {s.num_objects} object(s), {'static' if s.static_camera else 'moving'} camera"
+    if s.ground_truth:
+        text += f"; ground truth {', '.join(s.ground_truth)} (every camera)"
+    return text
 
 
 def describe_shard(path: str | Path) -> str:
@@ -29,8 +40,9 @@ def describe_shard(path: str | Path) -> str:
                 f"{s.num_frames} frames ({cams}, {s.frame_dtype}); "
                 f"C+ {s.threshold_pos:.3f} C- {s.threshold_neg:.3f}"
                 f"{' + per-pixel maps' if s.per_pixel_thresholds else ''}; texture {s.texture}; "
-                f"renderer {s.renderer}\n"
-                f"    stored MB: events {s.stored_bytes['events'] / 1e6:.1f}, frames {per_cam}")
+                f"renderer {s.renderer}{_dynamics(s)}\n"
+                f"    stored MB: events {s.stored_bytes['events'] / 1e6:.1f}, frames {per_cam}"
+                + "".join(f", {k} {s.stored_bytes[k] / 1e6:.1f}" for k in s.ground_truth))
             totals["events"] += s.num_events
             totals["frames"] += s.num_frames
     lines.append(f"  total: {totals['events']:,} events, {totals['frames']} frames")

@@ -1,4 +1,5 @@
-"""Pictures every stage draws: event images, grey panels, labelled contact sheets, PNGs.
+"""Pictures every stage draws: event images, grey panels, flow and surface-id colourings,
+labelled contact sheets, PNGs.
 
 The bottom floor's drawing kit: datagen's previews, training's validation sheets and
 evaluate's figures all use these, so an event looks the same in every picture.
@@ -86,3 +87,68 @@ def stack_panel(stack: np.ndarray) -> np.ndarray:
     for k in range(c):
         parts += [stack[k], gap] if k < c - 1 else [stack[k]]
     return np.repeat(np.concatenate(parts, axis=1)[..., None], 3, axis=2)
+
+
+#: Colour of the background (surface id 0) in :func:`ids_to_rgb`: dark grey.
+BACKGROUND_COLOR = np.array([64, 64, 64], np.uint8)
+_GOLDEN = 0.6180339887498949  # hue step between consecutive ids: never repeats
+
+
+def hsv_to_rgb(h: np.ndarray, s: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """uint8[..., 3] from hue in [0, 1) (0 red, 1/3 green, 2/3 blue), saturation and value
+    in [0, 1] (arrays of one shape)."""
+    h6 = (np.asarray(h, np.float64) % 1.0) * 6.0
+    s, v = np.asarray(s, np.float64), np.asarray(v, np.float64)
+    sector = np.floor(h6).astype(np.int64) % 6
+    f = h6 - np.floor(h6)
+    p, q, t = v * (1 - s), v * (1 - s * f), v * (1 - s * (1 - f))
+    r = np.choose(sector, [v, q, p, p, t, v])
+    g = np.choose(sector, [t, v, v, q, p, p])
+    b = np.choose(sector, [p, p, t, v, v, q])
+    return np.clip(np.round(np.stack([r, g, b], axis=-1) * 255.0), 0, 255).astype(np.uint8)
+
+
+def flow_scale(flow: np.ndarray, percentile: float = 99.0) -> float:
+    """A robust largest flow magnitude (the ``percentile`` of the finite magnitudes of
+    ``flow`` [2, H, W] or [T, 2, H, W]) for :func:`flow_to_rgb`; 1 for all-zero flow."""
+    flow = np.asarray(flow, np.float64)
+    mag = np.hypot(flow[..., 0, :, :], flow[..., 1, :, :])
+    mag = mag[np.isfinite(mag)]
+    scale = float(np.percentile(mag, percentile)) if mag.size else 0.0
+    return scale if scale > 0 else 1.0
+
+
+def flow_to_rgb(flow: np.ndarray, scale: float | None = None) -> np.ndarray:
+    """uint8[H, W, 3] colour wheel of ``flow`` [2, H, W] (channel 0 = x, image axes: +y
+    down), Middlebury style: hue is the direction (+x red, +y yellow-green, -x cyan, -y
+    violet: hue = atan2(y, x) / 2 pi), saturation the magnitude over ``scale`` (clipped
+    at 1), value 1, so zero flow is white; non-finite flow is black. ``scale`` defaults to
+    :func:`flow_scale` of ``flow``; say it in the picture's label."""
+    flow = np.asarray(flow, np.float64)
+    if flow.ndim != 3 or flow.shape[0] != 2:
+        raise ValueError(f"flow must be [2, H, W], got shape {flow.shape}")
+    scale = flow_scale(flow) if scale is None else float(scale)
+    if not scale > 0:
+        raise ValueError(f"flow scale must be positive, got {scale}")
+    u, v = flow
+    finite = np.isfinite(u) & np.isfinite(v)
+    u, v = np.where(finite, u, 0.0), np.where(finite, v, 0.0)
+    hue = (np.arctan2(v, u) / (2 * np.pi)) % 1.0
+    rgb = hsv_to_rgb(hue, np.clip(np.hypot(u, v) / scale, 0.0, 1.0), np.ones_like(u))
+    rgb[~finite] = 0
+    return rgb
+
+
+def ids_to_rgb(ids: np.ndarray) -> np.ndarray:
+    """uint8[H, W, 3] of surface ids: 0 (background) dark grey, every other id its own
+    bright colour (hues a golden-ratio step apart, value alternating 1 / 0.8), the same
+    id the same colour in every picture."""
+    ids = np.asarray(ids)
+    if not np.issubdtype(ids.dtype, np.integer):
+        raise ValueError(f"ids must be integers, got {ids.dtype}")
+    if ids.size and ids.min() < 0:
+        raise ValueError(f"ids must be non-negative, got {ids.min()}")
+    k = np.arange(int(ids.max(initial=0)) + 1)
+    palette = hsv_to_rgb(k * _GOLDEN, np.full(k.shape, 0.85), np.where(k % 2, 1.0, 0.8))
+    palette[0] = BACKGROUND_COLOR
+    return palette[ids]
