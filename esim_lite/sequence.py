@@ -143,12 +143,12 @@ class _Stage:
 
     def motion(self, pose: Pose, twist: Twist, poses: tuple[Pose, ...],
                twists: tuple[Twist, ...]) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """float64[H, W, 2] motion field of what the event camera sees and uint8[H, W] the
+        """float32[2, H, W] motion field of what the event camera sees and uint8[H, W] the
         surface ids (None, None: a plane alone, whose flow the sampler computes itself)."""
         if not self.scene.objects:
             return None, None
         gt = surface_truth(self.scene, self.rig.event, pose, twist, poses, twists)
-        return gt.flow.transpose(1, 2, 0).astype(np.float64), gt.ids
+        return gt.flow, gt.ids
 
     def frame(self, renderer: Renderer, t_ns: int) -> FrameSample:
         pose, twist, poses, twists = self.at(t_ns)

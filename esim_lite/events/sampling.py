@@ -196,6 +196,62 @@ def edge_speed(flow: np.ndarray, ids: np.ndarray) -> float:
     return float(np.sqrt((flow[edge] ** 2).sum(-1)).max())
 
 
+@numba.njit(cache=True, nogil=True)
+def dynamic_bounds(log_img, flow, ids, band_px):
+    """(largest :func:`log_change_rate_bound` with ``ids``, :func:`edge_speed`,
+    :func:`boundary_band` of ``band_px``) in one compiled pass; ``flow`` is float[2, H, W]
+    (channel 0 = x)."""
+    h, w = log_img.shape
+    gx = np.zeros((h, w))
+    gy = np.zeros((h, w))
+    edge = np.zeros((h, w), np.bool_)
+    for y in range(h):
+        for x in range(w - 1):
+            if ids[y, x] != ids[y, x + 1]:
+                edge[y, x] = edge[y, x + 1] = True
+            else:
+                d = abs(np.float64(log_img[y, x + 1]) - log_img[y, x])
+                gx[y, x] = max(gx[y, x], d)
+                gx[y, x + 1] = max(gx[y, x + 1], d)
+    for y in range(h - 1):
+        for x in range(w):
+            if ids[y, x] != ids[y + 1, x]:
+                edge[y, x] = edge[y + 1, x] = True
+            else:
+                d = abs(np.float64(log_img[y + 1, x]) - log_img[y, x])
+                gy[y, x] = max(gy[y, x], d)
+                gy[y + 1, x] = max(gy[y + 1, x], d)
+    rate = 0.0
+    speed2 = 0.0
+    for y in range(h):
+        for x in range(w):
+            u, v = np.float64(flow[0, y, x]), np.float64(flow[1, y, x])
+            mx = gx[y, x]  # the x difference over rows y-1..y+1
+            if y > 0:
+                mx = max(mx, gx[y - 1, x])
+            if y < h - 1:
+                mx = max(mx, gx[y + 1, x])
+            my = gy[y, x]  # the y difference over columns x-1..x+1
+            if x > 0:
+                my = max(my, gy[y, x - 1])
+            if x < w - 1:
+                my = max(my, gy[y, x + 1])
+            rate = max(rate, abs(u) * mx + abs(v) * my)
+            if edge[y, x]:
+                speed2 = max(speed2, u * u + v * v)
+    band = np.zeros((h, w), np.bool_)
+    for y in range(h):
+        for x in range(w):
+            if edge[y, x]:
+                band[max(0, y - band_px):min(h, y + band_px + 1),
+                     max(0, x - band_px):min(w, x + band_px + 1)] = True
+    band[:band_px] = True
+    band[h - band_px:] = True
+    band[:, :band_px] = True
+    band[:, w - band_px:] = True
+    return rate, np.sqrt(speed2), band
+
+
 class AdaptiveSampler:
     """Proposes the next step for one camera and reviews the realised change."""
 
@@ -214,9 +270,10 @@ class AdaptiveSampler:
         """Seconds to the next sample, from the current log image and the motion.
 
         Args:
-            flow: float64[H, W, 2] exact motion field of the visible surfaces (px/s), for
-                scenes whose objects move on their own; None: the static plane's field,
-                computed here from the camera's ``pose`` and ``twist``.
+            flow: float[2, H, W] exact motion field of the visible surfaces (px/s, channel
+                0 = x, as :class:`~esim_lite.geometry.visibility.SurfaceTruth` holds it),
+                for scenes whose objects move on their own; None: the static plane's
+                field, computed here from the camera's ``pose`` and ``twist``.
             ids: uint8[H, W] the visible surface of every pixel (with ``flow``).
         """
         cfg = self.config
@@ -227,9 +284,7 @@ class AdaptiveSampler:
         if flow is not None:
             if ids is None:
                 raise ValueError("propose: a flow for moving objects needs the surface ids")
-            self._rate = float(log_change_rate_bound(log_img, flow, ids).max())
-            self._band = boundary_band(ids)
-            speed = edge_speed(flow, ids)
+            self._rate, speed, self._band = dynamic_bounds(log_img, flow, ids, BAND_PX)
             if speed > 0:
                 edge_dt = cfg.max_edge_step_px / speed
         else:

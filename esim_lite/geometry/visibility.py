@@ -15,6 +15,7 @@ together.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numba
@@ -196,23 +197,9 @@ def surface_truth(scene: DynamicScene, intrinsics: Intrinsics, camera: Pose,
     if len(object_poses) != k or len(object_twists) != k:
         raise ValueError(f"{len(object_poses)} object poses and {len(object_twists)} twists "
                          f"for {k} objects")
-    r_wo = np.zeros((k, 3, 3))
-    t_wo = np.zeros((k, 3))
-    v_o = np.zeros((k, 3))
-    w_o = np.zeros((k, 3))
-    geom = np.zeros((k, 6))  # half width, half height, col scale, col offset, row ...
-    shapes = np.zeros((k, 3), np.int64)  # alpha offset, h, w
-    offset = 0
-    for j, (obj, pose, tw) in enumerate(zip(scene.objects, object_poses, object_twists)):
-        r_wo[j], t_wo[j], v_o[j], w_o[j] = pose.r_wc, pose.t_wc, tw.v_w, tw.w_w
-        m = obj.surface.texture_from_plane()
-        geom[j] = (obj.surface.width_m / 2, obj.surface.height_m / 2, m[0, 0], m[0, 2],
-                   m[1, 1], m[1, 2])
-        h, w = obj.alpha.shape
-        shapes[j] = (offset, h, w)
-        offset += h * w
-    alphas = np.concatenate([o.alpha.ravel() for o in scene.objects]).astype(np.float64) \
-        if k else np.zeros(0)
+    r_wo, t_wo, geom, shapes, alphas, _ = pack_objects(scene, object_poses)
+    v_o = np.array([tw.v_w for tw in object_twists], np.float64).reshape(k, 3)
+    w_o = np.array([tw.w_w for tw in object_twists], np.float64).reshape(k, 3)
     flow, depth, ids = _truth_kernel(
         intrinsics.height, intrinsics.width, intrinsics.fx, intrinsics.fy, intrinsics.cx,
         intrinsics.cy, np.ascontiguousarray(camera.r_wc, np.float64),
@@ -222,18 +209,61 @@ def surface_truth(scene: DynamicScene, intrinsics: Intrinsics, camera: Pose,
     return SurfaceTruth(flow, depth, ids)
 
 
+def pack_objects(scene: DynamicScene, object_poses: tuple[Pose, ...], textures: bool = False
+                 ) -> tuple[np.ndarray, ...]:
+    """The objects as flat arrays for compiled kernels: poses ``r_wo`` [K,3,3] and ``t_wo``
+    [K,3]; ``geom`` [K,6] (half width, half height, then the plane-to-texture map: col
+    scale, col offset, row scale, row offset); ``shapes`` int64[K,3] (offset into the flat
+    arrays, h, w); ``alphas`` and (with ``textures``) ``texels``: float64, every object's
+    alpha / texture raveled one after another (``texels`` empty otherwise)."""
+    k = len(scene.objects)
+    if len(object_poses) != k:
+        raise ValueError(f"{len(object_poses)} object poses for {k} objects")
+    r_wo = np.array([p.r_wc for p in object_poses], np.float64).reshape(k, 3, 3)
+    t_wo = np.array([p.t_wc for p in object_poses], np.float64).reshape(k, 3)
+    return (r_wo, t_wo) + _packed_surfaces(scene, textures)
+
+
+@functools.lru_cache(maxsize=16)
+def _packed_surfaces(scene: DynamicScene, textures: bool) -> tuple[np.ndarray, ...]:
+    """The pose-free part of :func:`pack_objects`, built once per scene (scenes hash by
+    identity)."""
+    k = len(scene.objects)
+    geom = np.zeros((k, 6))
+    shapes = np.zeros((k, 3), np.int64)
+    offset = 0
+    for j, obj in enumerate(scene.objects):
+        m = obj.surface.texture_from_plane()
+        geom[j] = (obj.surface.width_m / 2, obj.surface.height_m / 2, m[0, 0], m[0, 2],
+                   m[1, 1], m[1, 2])
+        h, w = obj.alpha.shape
+        shapes[j] = (offset, h, w)
+        offset += h * w
+
+    def flat(arrays):
+        return np.concatenate([a.ravel() for a in arrays]).astype(np.float64) if k else \
+            np.zeros(0)
+
+    alphas = flat([o.alpha for o in scene.objects])
+    texels = flat([o.surface.texture for o in scene.objects]) if textures else np.zeros(0)
+    for a in (geom, shapes, alphas, texels):
+        a.flags.writeable = False
+    return geom, shapes, alphas, texels
+
+
 @numba.njit(cache=True, nogil=True)
-def _alpha_at(alphas, off, h, w, col, row):
-    """Bilinear alpha, texels clamped (as :func:`bilinear`)."""
+def bilinear_at(flat, off, h, w, col, row):
+    """Bilinear lookup of the [h, w] image stored at ``flat[off:off + h w]`` (row-major),
+    texels clamped (as :func:`bilinear`); compiled."""
     x = min(max(col, 0.0), w - 1.0)
     y = min(max(row, 0.0), h - 1.0)
     x0 = min(int(np.floor(x)), w - 2)
     y0 = min(int(np.floor(y)), h - 2)
     fx, fy = x - x0, y - y0
-    a00 = alphas[off + y0 * w + x0]
-    a01 = alphas[off + y0 * w + x0 + 1]
-    a10 = alphas[off + (y0 + 1) * w + x0]
-    a11 = alphas[off + (y0 + 1) * w + x0 + 1]
+    a00 = flat[off + y0 * w + x0]
+    a01 = flat[off + y0 * w + x0 + 1]
+    a10 = flat[off + (y0 + 1) * w + x0]
+    a11 = flat[off + (y0 + 1) * w + x0 + 1]
     top = a00 * (1 - fx) + a01 * fx
     bottom = a10 * (1 - fx) + a11 * fx
     return top * (1 - fy) + bottom * fy
@@ -278,7 +308,7 @@ def _truth_kernel(height, width, fx, fy, cx, cy, r_wc, c, v_c, w_c, r_wo, t_wo, 
                     continue
                 col = geom[j, 2] * px + geom[j, 3]
                 row = geom[j, 4] * py + geom[j, 5]
-                if _alpha_at(alphas, shapes[j, 0], shapes[j, 1], shapes[j, 2], col,
+                if bilinear_at(alphas, shapes[j, 0], shapes[j, 1], shapes[j, 2], col,
                              row) >= cutoff:
                     best, hit = lam, j + 1
             ids[y, x] = hit

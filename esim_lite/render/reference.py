@@ -1,22 +1,33 @@
 """The exact reference renderer: every sample ray traced in float64 through the dynamic
-scene (:func:`esim_lite.geometry.visibility.trace`), nearest alpha-tested hit, bilinear
-texture, ``s x s`` samples per pixel averaged in a fixed order.
+scene, nearest alpha-tested hit, bilinear texture, ``s x s`` samples per pixel averaged.
 
-Slow (numpy) and exact: the oracle that the Mitsuba backend is measured against on scenes
-with objects. It renders single-plane scenes too, where it agrees with the homography
-backend.
+Two implementations of the same rules:
+
+- :meth:`ReferenceRenderer.render_numpy` composes :func:`esim_lite.geometry.visibility.trace`
+  and :func:`~esim_lite.geometry.visibility.shade` on every sample ray (numpy, slow): the
+  oracle that the Mitsuba backend and the compiled path are measured against;
+- :meth:`ReferenceRenderer.render` (the backend ``reference``) runs one compiled pass
+  (numba, rows shared between threads, one writer per sample so the result does not depend
+  on the thread count) and tests an object only for the samples inside the image-space
+  bounding box of its projected patch, where the ray can meet it. That culling is what
+  makes a CPU ray caster of a few planar objects fast: most rays meet only the
+  background.
+
+It renders single-plane scenes too, where it agrees with the homography backend.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
+import numba
 import numpy as np
 
 from esim_lite.geometry.camera import Intrinsics
-from esim_lite.geometry.objects import DynamicScene
+from esim_lite.geometry.objects import ALPHA_CUTOFF, DynamicScene
 from esim_lite.geometry.pose import Pose
-from esim_lite.geometry.visibility import MISS, shade, trace
+from esim_lite.geometry.visibility import MISS, bilinear_at, pack_objects, shade, trace
 
 
 class ReferenceRenderer:
@@ -37,14 +48,40 @@ class ReferenceRenderer:
         self.supersample = {name: int(supersample.get(name, 1)) for name in self.cameras}
         if any(s < 1 for s in self.supersample.values()):
             raise ValueError(f"supersample factors must be >= 1, got {self.supersample}")
-        self._rays = {name: cam.scaled(self.supersample[name]).pixel_rays()
+        self._fine = {name: cam.scaled(self.supersample[name])
                       for name, cam in self.cameras.items()}
+        self._background = {}
+        for name, scene in self.scenes.items():
+            bg = scene.background
+            m = bg.texture_from_plane()
+            tex = np.ascontiguousarray(bg.texture, np.float32)
+            self._background[name] = (tex, np.array([m[0, 0], m[0, 2], m[1, 1], m[1, 2]]))
 
     def render(self, camera: str, pose: Pose, objects: Sequence[Pose] = ()) -> np.ndarray:
         """float32[H, W] linear intensity seen by ``camera`` at ``pose`` with the objects at
-        ``objects`` (object-to-world poses, in the scene's object order)."""
+        ``objects`` (object-to-world poses, in the scene's object order); compiled."""
         cam, s, scene = self.cameras[camera], self.supersample[camera], self.scenes[camera]
-        hits = trace(scene, pose, tuple(objects), self._rays[camera])
+        fine = self._fine[camera]
+        objects = tuple(objects)
+        r_wo, t_wo, geom, shapes, alphas, texels = pack_objects(scene, objects, textures=True)
+        boxes = np.array([_sample_box(fine, pose, o, g[0], g[1]) for o, g in zip(objects, geom)],
+                         np.int64).reshape(len(objects), 4)
+        tex, bg_map = self._background[camera]
+        img, missed = _render_kernel(
+            cam.height, cam.width, s, fine.fx, fine.fy, fine.cx, fine.cy,
+            np.ascontiguousarray(pose.r_wc, np.float64),
+            np.ascontiguousarray(pose.t_wc, np.float64), tex, bg_map, r_wo, t_wo, geom,
+            shapes, alphas, texels, boxes, ALPHA_CUTOFF)
+        if missed:
+            raise ValueError(f"camera {camera!r} sees past the background plane at this pose")
+        return img
+
+    def render_numpy(self, camera: str, pose: Pose, objects: Sequence[Pose] = ()
+                     ) -> np.ndarray:
+        """The same image from :func:`trace` and :func:`shade` on every sample ray (the
+        numpy oracle)."""
+        cam, s, scene = self.cameras[camera], self.supersample[camera], self.scenes[camera]
+        hits = trace(scene, pose, tuple(objects), self._fine[camera].pixel_rays())
         if np.any(hits.ids == MISS):
             raise ValueError(f"camera {camera!r} sees past the background plane at this pose")
         img = shade(scene, hits)
@@ -54,3 +91,112 @@ class ReferenceRenderer:
 
     def close(self) -> None:
         pass
+
+
+def _sample_box(fine: Intrinsics, camera: Pose, obj: Pose, half_w: float, half_h: float
+                ) -> tuple[int, int, int, int]:
+    """(x0, x1, y0, y1), half-open, the samples of the ``fine`` grid whose rays can meet the
+    patch: the bounding box of its projected corners plus one sample (the patch is convex,
+    so a ray through it projects inside); the whole grid when a corner is not in front of
+    the camera; an empty box when none is."""
+    corners = np.array([[sx * half_w, sy * half_h, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
+    x_c = (corners @ obj.r_wc.T + obj.t_wc - camera.t_wc) @ camera.r_wc
+    z = x_c[:, 2]
+    if np.all(z <= 0):
+        return 0, 0, 0, 0
+    if np.any(z <= 1e-9):
+        return 0, fine.width, 0, fine.height
+    u = fine.fx * x_c[:, 0] / z + fine.cx
+    v = fine.fy * x_c[:, 1] / z + fine.cy
+    x0, x1 = max(0, math.floor(u.min()) - 1), min(fine.width, math.ceil(u.max()) + 2)
+    y0, y1 = max(0, math.floor(v.min()) - 1), min(fine.height, math.ceil(v.max()) + 2)
+    if x0 >= x1 or y0 >= y1:
+        return 0, 0, 0, 0
+    return x0, x1, y0, y1
+
+
+@numba.njit(cache=True, nogil=True, parallel=True)
+def _render_kernel(height, width, s, fx, fy, cx, cy, r_wc, c, tex, bg_map, r_wo, t_wo,
+                   geom, shapes, alphas, texels, boxes, cutoff):
+    """float32[H, W] mean of the ``s x s`` samples of every pixel, and whether a ray missed
+    everything."""
+    fh, fw = height * s, width * s
+    samples = np.empty((fh, fw))
+    missed = np.zeros(fh, np.bool_)
+    k_objects = r_wo.shape[0]
+    origin = np.empty((k_objects, 3))
+    for j in range(k_objects):  # camera centre in each object's frame
+        for a in range(3):
+            origin[j, a] = (r_wo[j, 0, a] * (c[0] - t_wo[j, 0]) + r_wo[j, 1, a] *
+                            (c[1] - t_wo[j, 1]) + r_wo[j, 2, a] * (c[2] - t_wo[j, 2]))
+    th, tw = tex.shape
+    for yf in numba.prange(fh):
+        ry = (yf - cy) / fy
+        for xf in range(fw):
+            rx = (xf - cx) / fx
+            d0 = r_wc[0, 0] * rx + r_wc[0, 1] * ry + r_wc[0, 2]
+            d1 = r_wc[1, 0] * rx + r_wc[1, 1] * ry + r_wc[1, 2]
+            d2 = r_wc[2, 0] * rx + r_wc[2, 1] * ry + r_wc[2, 2]
+            best = np.inf
+            hit = -1
+            if d2 != 0:
+                lam = -c[2] / d2
+                if lam > 0 and np.isfinite(lam):
+                    best, hit = lam, 0
+            col = row = 0.0
+            for j in range(k_objects):
+                if xf < boxes[j, 0] or xf >= boxes[j, 1] or yf < boxes[j, 2] or \
+                        yf >= boxes[j, 3]:
+                    continue
+                do_z = r_wo[j, 0, 2] * d0 + r_wo[j, 1, 2] * d1 + r_wo[j, 2, 2] * d2
+                if do_z == 0:
+                    continue
+                lam = -origin[j, 2] / do_z
+                if not (lam > 0 and lam < best):
+                    continue
+                do_x = r_wo[j, 0, 0] * d0 + r_wo[j, 1, 0] * d1 + r_wo[j, 2, 0] * d2
+                do_y = r_wo[j, 0, 1] * d0 + r_wo[j, 1, 1] * d1 + r_wo[j, 2, 1] * d2
+                px = origin[j, 0] + lam * do_x
+                py = origin[j, 1] + lam * do_y
+                if abs(px) > geom[j, 0] or abs(py) > geom[j, 1]:
+                    continue
+                oc = geom[j, 2] * px + geom[j, 3]
+                orow = geom[j, 4] * py + geom[j, 5]
+                if bilinear_at(alphas, shapes[j, 0], shapes[j, 1], shapes[j, 2], oc,
+                               orow) >= cutoff:
+                    best, hit, col, row = lam, j + 1, oc, orow
+            if hit < 0:
+                missed[yf] = True
+                samples[yf, xf] = 0.0
+            elif hit == 0:
+                bx = c[0] + best * d0
+                by = c[1] + best * d1
+                samples[yf, xf] = _texel(tex, th, tw, bg_map[0] * bx + bg_map[1],
+                                         bg_map[2] * by + bg_map[3])
+            else:
+                j = hit - 1
+                samples[yf, xf] = bilinear_at(texels, shapes[j, 0], shapes[j, 1],
+                                              shapes[j, 2], col, row)
+    img = np.empty((height, width), np.float32)
+    inv = 1.0 / (s * s)
+    for y in numba.prange(height):
+        for x in range(width):
+            total = 0.0
+            for i in range(s):
+                for j in range(s):
+                    total += samples[y * s + i, x * s + j]
+            img[y, x] = total * inv
+    return img, missed.any()
+
+
+@numba.njit(cache=True, nogil=True)
+def _texel(tex, h, w, col, row):
+    """Bilinear lookup of the 2-D ``tex``, texels clamped (as ``visibility.bilinear``)."""
+    x = min(max(col, 0.0), w - 1.0)
+    y = min(max(row, 0.0), h - 1.0)
+    x0 = min(int(np.floor(x)), w - 2)
+    y0 = min(int(np.floor(y)), h - 2)
+    fx, fy = x - x0, y - y0
+    top = np.float64(tex[y0, x0]) * (1 - fx) + np.float64(tex[y0, x0 + 1]) * fx
+    bottom = np.float64(tex[y0 + 1, x0]) * (1 - fx) + np.float64(tex[y0 + 1, x0 + 1]) * fx
+    return top * (1 - fy) + bottom * fy

@@ -15,7 +15,14 @@ from datagen.textures import TextureSampler
 from esim_lite.config import CameraConfig, SimulationConfig
 from esim_lite.core.dataconf import ConfigError, from_mapping, load_config
 from esim_lite.core.events import Events
-from esim_lite.events.sampling import SamplingConfig, boundary_band
+from esim_lite.events.sampling import (
+    BAND_PX,
+    SamplingConfig,
+    boundary_band,
+    dynamic_bounds,
+    edge_speed,
+    log_change_rate_bound,
+)
 from esim_lite.events.simulator import EventSimulator
 from esim_lite.events.thresholds import ContrastThresholds
 from esim_lite.geometry.camera import Intrinsics
@@ -309,3 +316,21 @@ def test_the_dynamic_config_documents_every_objects_key():
     text = DYNAMIC.read_text()
     for name in ObjectsConfig.__dataclass_fields__:
         assert f"    {name}:" in text, name
+
+
+def test_compiled_sampler_bounds_equal_the_numpy_ones(specs):
+    cfg, seqs = specs
+    cam = cfg.simulation.camera.rig().event
+    rng = np.random.default_rng(0)
+    for s in seqs[:3]:
+        pose, tw = s.trajectory.pose_and_twist(0.1)
+        gt = surface_truth(s.scene, cam, pose, tw, *s.scene.object_motion(0.1))
+        log_img = np.log(rng.uniform(0.01, 1, cam.hw)).astype(np.float32)
+        rate, speed, band = dynamic_bounds(log_img, gt.flow, gt.ids, BAND_PX)
+        flow = gt.flow.transpose(1, 2, 0).astype(np.float64)
+        assert rate == pytest.approx(log_change_rate_bound(log_img, flow, gt.ids).max(),
+                                     rel=1e-12)
+        assert speed == pytest.approx(edge_speed(flow, gt.ids), rel=1e-6)
+        np.testing.assert_array_equal(band, boundary_band(gt.ids, BAND_PX))
+        # without the ids, the boundaries' contrast would count as a gradient
+        assert log_change_rate_bound(log_img, flow).max() >= rate
