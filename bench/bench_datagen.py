@@ -9,8 +9,9 @@ Run: .venv/bin/python bench/bench_datagen.py [--quick]
 and Mitsuba / homography. With ``--compare-code DIR`` it also runs another checkout (e.g. a
 git worktree of an older commit) in the same rotation: before/after a change.
 ``--dynamic CONFIG``: N sequences of today's single-plane homography dataset against N of
-CONFIG (moving objects, Mitsuba) with and without its ground truth, interleaved, one
-worker: the cost of dynamic scenes per sequence.
+CONFIG (moving objects, Mitsuba) with and without its ground truth and with the compiled
+exact renderer instead of Mitsuba, interleaved, one worker: the cost of dynamic scenes per
+sequence, per event and per render sample.
 Each case runs ``datagen generate`` as a child process into a fresh temporary folder and
 reports sequences/min, events/s (simulated events per wall second), the peak RSS of the
 largest process of the run (``getrusage(RUSAGE_CHILDREN)``: with workers, a worker or the
@@ -71,14 +72,16 @@ def run_case(n_seq: int, workers: int, sets: list[str], scale: str = "2",
                        cwd=code or Path(__file__).resolve().parents[1])
         seconds = time.perf_counter() - start
         peak_mb = max(before, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024
-        events = frames = 0
+        events = frames = samples = 0
         for path in out.glob("shard_*.h5"):
             with ShardReader(path) as r:
                 for name in r.sequences():
                     events += r.num_events(name)
                     frames += len(r.frame_event_idx(name))
+                    samples += len(r.read(name).sample_poses)
         sizes = stored_mb(out)
-    return {"seconds": seconds, "events": events, "frames": frames, "peak_mb": peak_mb,
+    return {"seconds": seconds, "events": events, "frames": frames, "samples": samples,
+            "peak_mb": peak_mb,
             "mb_per_seq": {k: v / n_seq for k, v in sizes.items()}}
 
 
@@ -177,7 +180,10 @@ def dynamic(config: str, n: int, repeats: int, seed: int) -> int:
 
     cases = {"plane, homography (today)": (None, ["simulation.render.backend=homography"]),
              f"{config}": (config, []),
-             f"{config}, no ground truth": (config, ["simulation.frames.ground_truth=[]"])}
+             f"{config}, no ground truth": (config, ["simulation.frames.ground_truth=[]"]),
+             f"{config}, no ground truth, reference renderer": (
+                 config, ["simulation.frames.ground_truth=[]",
+                          "simulation.render.backend=reference"])}
     print(f"# {' '.join(['python'] + sys.argv)}")
     print(f"# {machine()}; {n} sequences per run, seed {seed}, 1 worker, {repeats} runs")
     times: dict[str, list[float]] = {}
@@ -188,16 +194,20 @@ def dynamic(config: str, n: int, repeats: int, seed: int) -> int:
             times.setdefault(label, []).append(r["seconds"])
             last[label] = r
     base = statistics.median(times["plane, homography (today)"])
+    base_ev = last["plane, homography (today)"]
+    per_event = base / max(base_ev["events"], 1)
+    per_sample = base / max(base_ev["samples"], 1)
     print("| dataset | seconds (median) | runs | s per sequence | x plane homography | events "
-          "| frames | MB/seq |")
-    print("|---|---|---|---|---|---|---|---|")
+          "| x per event | render samples | x per sample | frames | MB/seq |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for label in cases:
         med = statistics.median(times[label])
         r = last[label]
         runs = ", ".join(f"{t:.1f}" for t in times[label])
         print(f"| {label} | {med:.1f} | {runs} | {med / n:.1f} | {med / base:.2f} | "
-              f"{r['events']:,} | {r['frames']} | {sum(r['mb_per_seq'].values()):.2f} |",
-              flush=True)
+              f"{r['events']:,} | {med / max(r['events'], 1) / per_event:.2f} | "
+              f"{r['samples']:,} | {med / max(r['samples'], 1) / per_sample:.2f} | "
+              f"{r['frames']} | {sum(r['mb_per_seq'].values()):.2f} |", flush=True)
     return 0
 
 
