@@ -16,6 +16,7 @@ together.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 import numba
@@ -198,6 +199,8 @@ def surface_truth(scene: DynamicScene, intrinsics: Intrinsics, camera: Pose,
         raise ValueError(f"{len(object_poses)} object poses and {len(object_twists)} twists "
                          f"for {k} objects")
     r_wo, t_wo, geom, shapes, alphas, _ = pack_objects(scene, object_poses)
+    boxes = np.array([sample_box(intrinsics, camera, o, g[0], g[1])
+                      for o, g in zip(object_poses, geom)], np.int64).reshape(k, 4)
     v_o = np.array([tw.v_w for tw in object_twists], np.float64).reshape(k, 3)
     w_o = np.array([tw.w_w for tw in object_twists], np.float64).reshape(k, 3)
     flow, depth, ids = _truth_kernel(
@@ -205,8 +208,30 @@ def surface_truth(scene: DynamicScene, intrinsics: Intrinsics, camera: Pose,
         intrinsics.cy, np.ascontiguousarray(camera.r_wc, np.float64),
         np.ascontiguousarray(camera.t_wc, np.float64),
         np.asarray(camera_twist.v_w, np.float64), np.asarray(camera_twist.w_w, np.float64),
-        r_wo, t_wo, v_o, w_o, geom, shapes, alphas, ALPHA_CUTOFF, MISS)
+        r_wo, t_wo, v_o, w_o, geom, shapes, alphas, boxes, ALPHA_CUTOFF, MISS)
     return SurfaceTruth(flow, depth, ids)
+
+
+def sample_box(fine: Intrinsics, camera: Pose, obj: Pose, half_w: float, half_h: float
+                ) -> tuple[int, int, int, int]:
+    """(x0, x1, y0, y1), half-open, the samples of the ``fine`` grid whose rays can meet the
+    patch: the bounding box of its projected corners plus one sample (the patch is convex,
+    so a ray through it projects inside); the whole grid when a corner is not in front of
+    the camera; an empty box when none is."""
+    corners = np.array([[sx * half_w, sy * half_h, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
+    x_c = (corners @ obj.r_wc.T + obj.t_wc - camera.t_wc) @ camera.r_wc
+    z = x_c[:, 2]
+    if np.all(z <= 0):
+        return 0, 0, 0, 0
+    if np.any(z <= 1e-9):
+        return 0, fine.width, 0, fine.height
+    u = fine.fx * x_c[:, 0] / z + fine.cx
+    v = fine.fy * x_c[:, 1] / z + fine.cy
+    x0, x1 = max(0, math.floor(u.min()) - 1), min(fine.width, math.ceil(u.max()) + 2)
+    y0, y1 = max(0, math.floor(v.min()) - 1), min(fine.height, math.ceil(v.max()) + 2)
+    if x0 >= x1 or y0 >= y1:
+        return 0, 0, 0, 0
+    return x0, x1, y0, y1
 
 
 def pack_objects(scene: DynamicScene, object_poses: tuple[Pose, ...], textures: bool = False
@@ -271,7 +296,7 @@ def bilinear_at(flat, off, h, w, col, row):
 
 @numba.njit(cache=True, nogil=True)
 def _truth_kernel(height, width, fx, fy, cx, cy, r_wc, c, v_c, w_c, r_wo, t_wo, v_o, w_o,
-                  geom, shapes, alphas, cutoff, miss):
+                  geom, shapes, alphas, boxes, cutoff, miss):
     flow = np.zeros((2, height, width), np.float32)
     depth = np.empty((height, width), np.float32)
     ids = np.empty((height, width), np.uint8)

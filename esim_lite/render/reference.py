@@ -18,7 +18,6 @@ It renders single-plane scenes too, where it agrees with the homography backend.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numba
@@ -27,7 +26,14 @@ import numpy as np
 from esim_lite.geometry.camera import Intrinsics
 from esim_lite.geometry.objects import ALPHA_CUTOFF, DynamicScene
 from esim_lite.geometry.pose import Pose
-from esim_lite.geometry.visibility import MISS, bilinear_at, pack_objects, shade, trace
+from esim_lite.geometry.visibility import (
+    MISS,
+    bilinear_at,
+    pack_objects,
+    sample_box,
+    shade,
+    trace,
+)
 
 
 class ReferenceRenderer:
@@ -37,12 +43,17 @@ class ReferenceRenderer:
         scenes: the scene seen by each camera (backgrounds may be prefiltered per camera).
         cameras: intrinsics by camera name.
         supersample: sub-pixel grid side per camera name.
+        threads: threads of the compiled pass (None: numba's default, all cores); the
+            image does not depend on it.
     """
 
     name = "reference"
 
     def __init__(self, scenes: dict[str, DynamicScene], cameras: dict[str, Intrinsics],
-                 supersample: dict[str, int]) -> None:
+                 supersample: dict[str, int], threads: int | None = None) -> None:
+        if threads is not None and threads < 1:
+            raise ValueError(f"threads must be >= 1 or None, got {threads}")
+        self.threads = threads
         self.scenes = dict(scenes)
         self.cameras = dict(cameras)
         self.supersample = {name: int(supersample.get(name, 1)) for name in self.cameras}
@@ -64,9 +75,11 @@ class ReferenceRenderer:
         fine = self._fine[camera]
         objects = tuple(objects)
         r_wo, t_wo, geom, shapes, alphas, texels = pack_objects(scene, objects, textures=True)
-        boxes = np.array([_sample_box(fine, pose, o, g[0], g[1]) for o, g in zip(objects, geom)],
+        boxes = np.array([sample_box(fine, pose, o, g[0], g[1]) for o, g in zip(objects, geom)],
                          np.int64).reshape(len(objects), 4)
         tex, bg_map = self._background[camera]
+        if self.threads is not None:
+            numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
         img, missed = _render_kernel(
             cam.height, cam.width, s, fine.fx, fine.fy, fine.cx, fine.cy,
             np.ascontiguousarray(pose.r_wc, np.float64),
@@ -93,28 +106,6 @@ class ReferenceRenderer:
         pass
 
 
-def _sample_box(fine: Intrinsics, camera: Pose, obj: Pose, half_w: float, half_h: float
-                ) -> tuple[int, int, int, int]:
-    """(x0, x1, y0, y1), half-open, the samples of the ``fine`` grid whose rays can meet the
-    patch: the bounding box of its projected corners plus one sample (the patch is convex,
-    so a ray through it projects inside); the whole grid when a corner is not in front of
-    the camera; an empty box when none is."""
-    corners = np.array([[sx * half_w, sy * half_h, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
-    x_c = (corners @ obj.r_wc.T + obj.t_wc - camera.t_wc) @ camera.r_wc
-    z = x_c[:, 2]
-    if np.all(z <= 0):
-        return 0, 0, 0, 0
-    if np.any(z <= 1e-9):
-        return 0, fine.width, 0, fine.height
-    u = fine.fx * x_c[:, 0] / z + fine.cx
-    v = fine.fy * x_c[:, 1] / z + fine.cy
-    x0, x1 = max(0, math.floor(u.min()) - 1), min(fine.width, math.ceil(u.max()) + 2)
-    y0, y1 = max(0, math.floor(v.min()) - 1), min(fine.height, math.ceil(v.max()) + 2)
-    if x0 >= x1 or y0 >= y1:
-        return 0, 0, 0, 0
-    return x0, x1, y0, y1
-
-
 @numba.njit(cache=True, nogil=True, parallel=True)
 def _render_kernel(height, width, s, fx, fy, cx, cy, r_wc, c, tex, bg_map, r_wo, t_wo,
                    geom, shapes, alphas, texels, boxes, cutoff):
@@ -130,10 +121,11 @@ def _render_kernel(height, width, s, fx, fy, cx, cy, r_wc, c, tex, bg_map, r_wo,
             origin[j, a] = (r_wo[j, 0, a] * (c[0] - t_wo[j, 0]) + r_wo[j, 1, a] *
                             (c[1] - t_wo[j, 1]) + r_wo[j, 2, a] * (c[2] - t_wo[j, 2]))
     th, tw = tex.shape
+    xs = (np.arange(fw) - cx) / fx
     for yf in numba.prange(fh):
         ry = (yf - cy) / fy
         for xf in range(fw):
-            rx = (xf - cx) / fx
+            rx = xs[xf]
             d0 = r_wc[0, 0] * rx + r_wc[0, 1] * ry + r_wc[0, 2]
             d1 = r_wc[1, 0] * rx + r_wc[1, 1] * ry + r_wc[1, 2]
             d2 = r_wc[2, 0] * rx + r_wc[2, 1] * ry + r_wc[2, 2]

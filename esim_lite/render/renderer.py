@@ -39,7 +39,8 @@ class RenderConfig:
             against an 8x8 render, 3x3 leaves <= 2% extra events from aliasing, 2x2 <= 4.3%.
         supersample_hr: sub-pixel grid side for the HR intensity cameras (frames only).
         mitsuba_variant: ``auto`` or an explicit Mitsuba variant name.
-        threads: worker threads for Mitsuba's LLVM backend (None: all cores).
+        threads: worker threads for Mitsuba's LLVM backend and the compiled reference
+            renderer (None: all cores).
     """
 
     backend: Literal["mitsuba", "homography", "reference"] = "mitsuba"
@@ -81,7 +82,7 @@ def make_renderer(scene: PlanarScene | DynamicScene, cameras: dict[str, Intrinsi
     if config.backend == "reference":
         from esim_lite.render.reference import ReferenceRenderer
 
-        return ReferenceRenderer(scenes, cameras, supersample)
+        return ReferenceRenderer(scenes, cameras, supersample, threads=config.threads)
     if config.backend == "mitsuba":
         from esim_lite.render.mitsuba import MitsubaRenderer
 

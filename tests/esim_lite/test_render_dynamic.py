@@ -255,3 +255,14 @@ def test_reference_refuses_a_view_past_the_background(background):
     for render in (ref.render, ref.render_numpy):
         with pytest.raises(ValueError, match="sees past the background"):
             render("lr", sideways)
+
+
+def test_compiled_reference_is_the_same_whatever_the_threads(background):
+    rng = np.random.default_rng(6)
+    objects, poses = random_objects(rng, 5)
+    scene = DynamicScene(background, tuple(objects))
+    cam = Intrinsics.from_fov(80, 60, 60.0)
+    images = [ReferenceRenderer({"lr": scene}, {"lr": cam}, {"lr": 3}, threads=t).render(
+        "lr", camera_pose(), poses) for t in (None, 1, 2)]
+    for other in images[1:]:
+        np.testing.assert_array_equal(images[0], other)
