@@ -77,5 +77,5 @@ step tests 240 tests.log "$py" -m pytest -q -rs -p no:cacheprovider \
 step bench_events 120 bench_events.md "$py" bench/bench_events.py --repeats 3
 step bench_datagen 150 bench_datagen.md "$py" bench/bench_datagen.py --ratio --n-seq 4 \
     --repeats 2 --workers 1
-step compare_backends 90 compare_backends.md "$py" bench/compare_backends.py --n-seq 4
+step compare_backends 120 compare_backends.md "$py" bench/compare_backends.py --n-seq 4
 exit $failed
