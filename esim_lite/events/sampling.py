@@ -165,9 +165,9 @@ def max_log_change_rate(log_img, fx, fy, cx, cy, r_z, t_z, v_c, w_c):
     return best
 
 
-def boundary_band(ids: np.ndarray, width: int = BAND_PX) -> np.ndarray:
-    """bool[H, W]: pixels within ``width`` of an occlusion boundary (neighbours on different
-    surfaces) or of the image border."""
+def boundary_pixels(ids: np.ndarray) -> np.ndarray:
+    """bool[H, W]: pixels with a 4-neighbour on another surface (either side of an
+    occlusion boundary)."""
     edge = np.zeros(ids.shape, bool)
     dx = ids[:, 1:] != ids[:, :-1]
     dy = ids[1:] != ids[:-1]
@@ -175,6 +175,13 @@ def boundary_band(ids: np.ndarray, width: int = BAND_PX) -> np.ndarray:
     edge[:, :-1] |= dx
     edge[1:] |= dy
     edge[:-1] |= dy
+    return edge
+
+
+def boundary_band(ids: np.ndarray, width: int = BAND_PX) -> np.ndarray:
+    """bool[H, W]: pixels within ``width`` of an occlusion boundary (neighbours on different
+    surfaces) or of the image border."""
+    edge = boundary_pixels(ids)
     band = maximum_filter(edge, size=2 * width + 1, mode="constant", cval=False) if \
         edge.any() else edge
     band[:width] = band[-width:] = True
@@ -184,13 +191,7 @@ def boundary_band(ids: np.ndarray, width: int = BAND_PX) -> np.ndarray:
 
 def edge_speed(flow: np.ndarray, ids: np.ndarray) -> float:
     """Largest flow magnitude (px/s) of the pixels on either side of an occlusion boundary."""
-    edge = np.zeros(ids.shape, bool)
-    dx = ids[:, 1:] != ids[:, :-1]
-    dy = ids[1:] != ids[:-1]
-    edge[:, 1:] |= dx
-    edge[:, :-1] |= dx
-    edge[1:] |= dy
-    edge[:-1] |= dy
+    edge = boundary_pixels(ids)
     if not edge.any():
         return 0.0
     return float(np.sqrt((flow[edge] ** 2).sum(-1)).max())

@@ -295,51 +295,73 @@ def bilinear_at(flat, off, h, w, col, row):
 
 
 @numba.njit(cache=True, nogil=True)
+def camera_in_objects(c, r_wo, t_wo):
+    """float64[K, 3]: the camera centre ``c`` in every object's frame (compiled)."""
+    k_objects = r_wo.shape[0]
+    origin = np.empty((k_objects, 3))
+    for j in range(k_objects):
+        for a in range(3):
+            origin[j, a] = (r_wo[j, 0, a] * (c[0] - t_wo[j, 0]) + r_wo[j, 1, a] *
+                            (c[1] - t_wo[j, 1]) + r_wo[j, 2, a] * (c[2] - t_wo[j, 2]))
+    return origin
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def nearest_hit(d0, d1, d2, c_z, x, y, origin, r_wo, geom, shapes, alphas, boxes, cutoff):
+    """The nearest alpha-tested hit of the world ray ``(d0, d1, d2)`` from a camera at
+    height ``c_z`` through sample ``(x, y)``, as :func:`trace` finds it (compiled):
+    ``(depth, surface, col, row)``, surface -1 for nothing, 0 the background, ``k + 1``
+    object ``k``; ``col, row``: the object's texture coordinates. An object is tested only
+    where ``(x, y)`` lies in its box ``boxes[k]`` (:func:`sample_box`)."""
+    best = np.inf
+    hit = -1
+    col = row = 0.0
+    if d2 != 0:
+        lam = -c_z / d2
+        if lam > 0 and np.isfinite(lam):
+            best, hit = lam, 0
+    for j in range(r_wo.shape[0]):
+        if x < boxes[j, 0] or x >= boxes[j, 1] or y < boxes[j, 2] or y >= boxes[j, 3]:
+            continue
+        do_z = r_wo[j, 0, 2] * d0 + r_wo[j, 1, 2] * d1 + r_wo[j, 2, 2] * d2
+        if do_z == 0:
+            continue
+        lam = -origin[j, 2] / do_z
+        if not (lam > 0 and lam < best):
+            continue
+        do_x = r_wo[j, 0, 0] * d0 + r_wo[j, 1, 0] * d1 + r_wo[j, 2, 0] * d2
+        do_y = r_wo[j, 0, 1] * d0 + r_wo[j, 1, 1] * d1 + r_wo[j, 2, 1] * d2
+        px = origin[j, 0] + lam * do_x
+        py = origin[j, 1] + lam * do_y
+        if abs(px) > geom[j, 0] or abs(py) > geom[j, 1]:
+            continue
+        oc = geom[j, 2] * px + geom[j, 3]
+        orow = geom[j, 4] * py + geom[j, 5]
+        if bilinear_at(alphas, shapes[j, 0], shapes[j, 1], shapes[j, 2], oc, orow) >= cutoff:
+            best, hit, col, row = lam, j + 1, oc, orow
+    return best, hit, col, row
+
+
+@numba.njit(cache=True, nogil=True)
 def _truth_kernel(height, width, fx, fy, cx, cy, r_wc, c, v_c, w_c, r_wo, t_wo, v_o, w_o,
                   geom, shapes, alphas, boxes, cutoff, miss):
     flow = np.zeros((2, height, width), np.float32)
     depth = np.empty((height, width), np.float32)
     ids = np.empty((height, width), np.uint8)
-    k_objects = r_wo.shape[0]
-    origin = np.empty((k_objects, 3))
-    for j in range(k_objects):  # camera centre in each object's frame
-        for a in range(3):
-            origin[j, a] = (r_wo[j, 0, a] * (c[0] - t_wo[j, 0]) + r_wo[j, 1, a] *
-                            (c[1] - t_wo[j, 1]) + r_wo[j, 2, a] * (c[2] - t_wo[j, 2]))
+    origin = camera_in_objects(c, r_wo, t_wo)
     d = np.empty(3)
     for y in range(height):
         for x in range(width):
             rx, ry = (x - cx) / fx, (y - cy) / fy
             for a in range(3):
                 d[a] = r_wc[a, 0] * rx + r_wc[a, 1] * ry + r_wc[a, 2]
-            best = np.inf
-            hit = miss
-            if d[2] != 0:
-                lam = -c[2] / d[2]
-                if lam > 0 and np.isfinite(lam):
-                    best, hit = lam, 0
-            for j in range(k_objects):
-                do_z = r_wo[j, 0, 2] * d[0] + r_wo[j, 1, 2] * d[1] + r_wo[j, 2, 2] * d[2]
-                if do_z == 0:
-                    continue
-                lam = -origin[j, 2] / do_z
-                if not (lam > 0 and lam < best):
-                    continue
-                do_x = r_wo[j, 0, 0] * d[0] + r_wo[j, 1, 0] * d[1] + r_wo[j, 2, 0] * d[2]
-                do_y = r_wo[j, 0, 1] * d[0] + r_wo[j, 1, 1] * d[1] + r_wo[j, 2, 1] * d[2]
-                px = origin[j, 0] + lam * do_x
-                py = origin[j, 1] + lam * do_y
-                if abs(px) > geom[j, 0] or abs(py) > geom[j, 1]:
-                    continue
-                col = geom[j, 2] * px + geom[j, 3]
-                row = geom[j, 4] * py + geom[j, 5]
-                if bilinear_at(alphas, shapes[j, 0], shapes[j, 1], shapes[j, 2], col,
-                             row) >= cutoff:
-                    best, hit = lam, j + 1
-            ids[y, x] = hit
-            if hit == miss:
+            best, hit, _, _ = nearest_hit(d[0], d[1], d[2], c[2], x, y, origin, r_wo, geom,
+                                          shapes, alphas, boxes, cutoff)
+            if hit < 0:
+                ids[y, x] = miss
                 depth[y, x] = np.inf
                 continue
+            ids[y, x] = hit
             depth[y, x] = best
             # world point, its velocity, and its image velocity
             rel0, rel1, rel2 = best * d[0], best * d[1], best * d[2]

@@ -16,6 +16,7 @@ import numpy as np
 from esim_lite.geometry.camera import Intrinsics
 from esim_lite.geometry.pose import Pose
 from esim_lite.geometry.scene import PlanarScene
+from esim_lite.render.renderer import sample_grids
 
 
 class HomographyRenderer:
@@ -33,11 +34,7 @@ class HomographyRenderer:
                  supersample: dict[str, int]) -> None:
         self.scenes = dict(scenes)
         self.cameras = dict(cameras)
-        self.supersample = {name: int(supersample.get(name, 1)) for name in self.cameras}
-        if any(s < 1 for s in self.supersample.values()):
-            raise ValueError(f"supersample factors must be >= 1, got {self.supersample}")
-        self._fine = {name: cam.scaled(self.supersample[name])
-                      for name, cam in self.cameras.items()}
+        self.supersample, self._fine = sample_grids(self.cameras, supersample)
 
     def render(self, camera: str, pose: Pose, objects: Sequence[Pose] = ()) -> np.ndarray:
         """float32[H, W] linear intensity seen by ``camera`` at ``pose`` (one plane: no

@@ -29,11 +29,14 @@ from esim_lite.geometry.pose import Pose
 from esim_lite.geometry.visibility import (
     MISS,
     bilinear_at,
+    camera_in_objects,
+    nearest_hit,
     pack_objects,
     sample_box,
     shade,
     trace,
 )
+from esim_lite.render.renderer import sample_grids
 
 
 class ReferenceRenderer:
@@ -56,11 +59,7 @@ class ReferenceRenderer:
         self.threads = threads
         self.scenes = dict(scenes)
         self.cameras = dict(cameras)
-        self.supersample = {name: int(supersample.get(name, 1)) for name in self.cameras}
-        if any(s < 1 for s in self.supersample.values()):
-            raise ValueError(f"supersample factors must be >= 1, got {self.supersample}")
-        self._fine = {name: cam.scaled(self.supersample[name])
-                      for name, cam in self.cameras.items()}
+        self.supersample, self._fine = sample_grids(self.cameras, supersample)
         self._background = {}
         for name, scene in self.scenes.items():
             bg = scene.background
@@ -114,12 +113,7 @@ def _render_kernel(height, width, s, fx, fy, cx, cy, r_wc, c, tex, bg_map, r_wo,
     fh, fw = height * s, width * s
     samples = np.empty((fh, fw))
     missed = np.zeros(fh, np.bool_)
-    k_objects = r_wo.shape[0]
-    origin = np.empty((k_objects, 3))
-    for j in range(k_objects):  # camera centre in each object's frame
-        for a in range(3):
-            origin[j, a] = (r_wo[j, 0, a] * (c[0] - t_wo[j, 0]) + r_wo[j, 1, a] *
-                            (c[1] - t_wo[j, 1]) + r_wo[j, 2, a] * (c[2] - t_wo[j, 2]))
+    origin = camera_in_objects(c, r_wo, t_wo)
     th, tw = tex.shape
     xs = (np.arange(fw) - cx) / fx
     for yf in numba.prange(fh):
@@ -129,34 +123,8 @@ def _render_kernel(height, width, s, fx, fy, cx, cy, r_wc, c, tex, bg_map, r_wo,
             d0 = r_wc[0, 0] * rx + r_wc[0, 1] * ry + r_wc[0, 2]
             d1 = r_wc[1, 0] * rx + r_wc[1, 1] * ry + r_wc[1, 2]
             d2 = r_wc[2, 0] * rx + r_wc[2, 1] * ry + r_wc[2, 2]
-            best = np.inf
-            hit = -1
-            if d2 != 0:
-                lam = -c[2] / d2
-                if lam > 0 and np.isfinite(lam):
-                    best, hit = lam, 0
-            col = row = 0.0
-            for j in range(k_objects):
-                if xf < boxes[j, 0] or xf >= boxes[j, 1] or yf < boxes[j, 2] or \
-                        yf >= boxes[j, 3]:
-                    continue
-                do_z = r_wo[j, 0, 2] * d0 + r_wo[j, 1, 2] * d1 + r_wo[j, 2, 2] * d2
-                if do_z == 0:
-                    continue
-                lam = -origin[j, 2] / do_z
-                if not (lam > 0 and lam < best):
-                    continue
-                do_x = r_wo[j, 0, 0] * d0 + r_wo[j, 1, 0] * d1 + r_wo[j, 2, 0] * d2
-                do_y = r_wo[j, 0, 1] * d0 + r_wo[j, 1, 1] * d1 + r_wo[j, 2, 1] * d2
-                px = origin[j, 0] + lam * do_x
-                py = origin[j, 1] + lam * do_y
-                if abs(px) > geom[j, 0] or abs(py) > geom[j, 1]:
-                    continue
-                oc = geom[j, 2] * px + geom[j, 3]
-                orow = geom[j, 4] * py + geom[j, 5]
-                if bilinear_at(alphas, shapes[j, 0], shapes[j, 1], shapes[j, 2], oc,
-                               orow) >= cutoff:
-                    best, hit, col, row = lam, j + 1, oc, orow
+            best, hit, col, row = nearest_hit(d0, d1, d2, c[2], xf, yf, origin, r_wo, geom,
+                                              shapes, alphas, boxes, cutoff)
             if hit < 0:
                 missed[yf] = True
                 samples[yf, xf] = 0.0
