@@ -22,7 +22,9 @@ texture moving fast: frames 7 ms apart, about 0.15). Timed, on one pinned core:
   two launches) and the events back on the host as an ``Events`` record.
 
 Like for like: the same frames, ``log(u8 / 255 + 1e-3)``, Cp = Cn = 0.2, no refractory
-period, no noise. Every implementation is timed in turn within each repeat (medians), so a
+period, no noise; the ``numba + noise`` / ``+ low-pass`` rows add DAVIS-like noise and a
+300 Hz photoreceptor low-pass (``full`` only: they are steps of the simulator, not of the
+kernel). Every implementation is timed in turn within each repeat (medians), so a
 slow spell of the machine falls on all alike. The Python loop runs once, on the first 30
 frames only (~10^3 times slower).
 """
@@ -41,7 +43,9 @@ import numpy as np
 from skimage import data
 
 from esim_lite.core.events import Events
+from esim_lite.events.bandwidth import BandwidthConfig
 from esim_lite.events.kernel import NEVER, TIE_TOL
+from esim_lite.events.noise import NoiseConfig, NoiseModel
 from esim_lite.events.reference import numpy_step, python_step
 from esim_lite.events.simulator import EventSimulator, _NumbaKernel, log_intensity
 from esim_lite.events.thresholds import ContrastThresholds
@@ -87,10 +91,21 @@ def kernel_run(kernel, logs: np.ndarray) -> int:
     return n_events
 
 
-def simulate(kind: str, frames: np.ndarray, step_ns: int) -> Events:
-    """Frames in memory -> one time-sorted event list, with e2sr's EventSimulator."""
+#: The sensor options of the "numba + ..." rows: DAVIS-like noise rates (shot 0.1 Hz, 0.1%
+#: hot pixels at 10 Hz, leak 0.2 Hz per pixel) and a 300 Hz photoreceptor (v2e's default).
+NOISE = NoiseConfig(shot_rate_hz=0.1, hot_pixel_fraction=1e-3, hot_pixel_rate_hz=10.0,
+                    leak_rate_hz=0.2)
+LOW_PASS = BandwidthConfig(cutoff_hz=300.0)
+
+
+def simulate(kind: str, frames: np.ndarray, step_ns: int, noise: bool = False,
+             low_pass: bool = False) -> Events:
+    """Frames in memory -> one time-sorted event list, with e2sr's EventSimulator (with
+    :data:`NOISE` and/or :data:`LOW_PASS` when asked)."""
     th = ContrastThresholds.uniform(THRESHOLD, THRESHOLD, frames.shape[1:])
-    sim = EventSimulator(linear(frames[0]), 0, th, log_eps=LOG_EPS, kernel=kind)
+    model = NoiseModel(NOISE, frames.shape[1:], np.random.default_rng(0)) if noise else None
+    sim = EventSimulator(linear(frames[0]), 0, th, log_eps=LOG_EPS, kernel=kind, noise=model,
+                         bandwidth=LOW_PASS if low_pass else None)
     parts = [sim.step(linear(frames[k]), k * step_ns) for k in range(1, len(frames))]
     return Events.concatenate(parts, frames.shape[1:])
 
@@ -187,6 +202,11 @@ def run_case(case: str, step_ms: float, n_frames: int, repeats: int, esim_py,
     for name, (kernel, kind, n) in impls.items():
         jobs[name + "/kernel"] = lambda kernel=kernel, n=n: kernel_run(kernel, logs[:n])
         jobs[name + "/full"] = lambda kind=kind, n=n: simulate(kind, frames[:n], step_ns)
+    sensor = {"numba + noise": (True, False), "numba + low-pass": (False, True),
+              "numba + noise + low-pass": (True, True)}
+    for name, (noise, low_pass) in sensor.items():
+        jobs[name + "/full"] = lambda noise=noise, low_pass=low_pass: simulate(
+            "numba", frames, step_ns, noise, low_pass)
     torch_names = []
     if torch_devices:
         import torch
@@ -207,7 +227,8 @@ def run_case(case: str, step_ms: float, n_frames: int, repeats: int, esim_py,
         "python per-pixel loop/full": lambda: simulate("python", frames[:python_n], step_ns)},
         1))
     rows = []
-    for name in [*impls, *torch_names, "python per-pixel loop", "esim_py (C++, from memory)"]:
+    for name in [*impls, *sensor, *torch_names, "python per-pixel loop",
+                 "esim_py (C++, from memory)"]:
         if name + "/full" not in timed:
             continue
         n = python_n if name.startswith("python") else len(frames)

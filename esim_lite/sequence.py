@@ -204,7 +204,8 @@ def _run(renderer: Renderer, stage: _Stage, thresholds: ContrastThresholds,
     pose, twist = state[0], state[1]
     image = renderer.render("lr", pose, state[2])
     sim = EventSimulator(image, t, thresholds, log_eps=ev_cfg.log_eps,
-                         refractory_ns=ev_cfg.refractory_ns, noise=noise)
+                         refractory_ns=ev_cfg.refractory_ns, noise=noise,
+                         bandwidth=ev_cfg.bandwidth)
     sampler = AdaptiveSampler(config.sampling, rig.event, thresholds.min_threshold)
     schedule = FrameSchedule(config.frames, config.duration_s)
     log_img = log_intensity(image, ev_cfg.log_eps)
@@ -213,6 +214,9 @@ def _run(renderer: Renderer, stage: _Stage, thresholds: ContrastThresholds,
 
     while t < t_end and not schedule.done():
         step_s = sampler.propose(log_img, pose, twist, *stage.motion(*state))
+        if sim.lowpass is not None:  # the filtered signal keeps relaxing after a change
+            step_s = max(min(step_s, sim.max_step(sampler.budget)),
+                         config.sampling.min_step_s)
         while True:
             t_new = min(t + max(1, int(round(step_s * 1e9))), t_end)
             new_state = stage.at(t_new)

@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
 
 from esim_lite.core.events import Events
+from esim_lite.events.bandwidth import BandwidthConfig, PhotoreceptorLowPass
 from esim_lite.events.kernel import NEVER, TIE_TOL, esim_step_sorted
 from esim_lite.events.noise import NoiseConfig, NoiseModel
 from esim_lite.events.reference import numpy_step, python_step
@@ -25,12 +27,14 @@ class EventConfig:
         thresholds: ranges of the per-sequence contrast thresholds and per-pixel mismatch.
         refractory_ns: a pixel's events closer than this to its previous one are dropped.
         noise: shot noise, hot pixels and leak (all off by default).
+        bandwidth: the photoreceptor's intensity-dependent low-pass (off by default).
     """
 
     log_eps: float = 1e-3
     thresholds: ThresholdConfig = field(default_factory=ThresholdConfig)
     refractory_ns: int = 0
     noise: NoiseConfig = field(default_factory=NoiseConfig)
+    bandwidth: BandwidthConfig = field(default_factory=BandwidthConfig)
 
     def __post_init__(self) -> None:
         if self.log_eps <= 0:
@@ -77,6 +81,8 @@ class EventSimulator:
         thresholds: the sensor's (possibly mismatched) contrast thresholds.
         log_eps, refractory_ns: see :class:`EventConfig`.
         noise: a :class:`NoiseModel`, or None for a noise-free sensor.
+        bandwidth: the photoreceptor low-pass (None or disabled: an infinitely fast one,
+            the ESIM model).
         kernel: ``numba`` (fast), the ``numpy``/``python`` reference implementations, or
             ``torch`` (:mod:`esim_lite.events.torch_kernel`, on CUDA when torch sees a GPU, else on
             the CPU; imported only when asked for).
@@ -84,7 +90,8 @@ class EventSimulator:
 
     def __init__(self, first_intensity: np.ndarray, t0_ns: int, thresholds: ContrastThresholds,
                  *, log_eps: float = 1e-3, refractory_ns: int = 0,
-                 noise: NoiseModel | None = None, kernel: KernelName = "numba") -> None:
+                 noise: NoiseModel | None = None, kernel: KernelName = "numba",
+                 bandwidth: BandwidthConfig | None = None) -> None:
         self.hw = tuple(first_intensity.shape)
         if thresholds.pos_map.shape != self.hw:
             raise ValueError(f"threshold maps {thresholds.pos_map.shape} do not match the "
@@ -100,8 +107,10 @@ class EventSimulator:
         self._c_neg = np.ascontiguousarray(thresholds.neg_map, np.float64)
         self.t0_ns = int(t0_ns)
         self.t_ns = int(t0_ns)
-        self.log_prev = self._effective_log(log_intensity(first_intensity, self.log_eps),
-                                            self.t_ns)
+        first_log = log_intensity(first_intensity, self.log_eps)
+        self.lowpass = PhotoreceptorLowPass(bandwidth, first_log, self.log_eps) \
+            if bandwidth is not None and bandwidth.enabled else None
+        self.log_prev = self._effective_log(first_log, self.t_ns)
         self.ref = self.log_prev.astype(np.float64)
         self.last_t = np.full(self.hw, NEVER, np.int64)
 
@@ -109,6 +118,11 @@ class EventSimulator:
         drift = None if self.noise is None else self.noise.leak_offset(
             self._c_pos, (t_ns - self.t0_ns) * 1e-9)
         return log_img if drift is None else log_img + drift
+
+    def max_step(self, budget: float) -> float:
+        """The longest next step (s) that keeps the low-passed signal's own relaxation
+        within ``budget`` at every pixel (inf without a low-pass)."""
+        return math.inf if self.lowpass is None else self.lowpass.max_step(budget)
 
     def step(self, intensity: np.ndarray, t_ns: int) -> Events:
         """Events between the previous sample and this linear intensity sample at ``t_ns``."""
@@ -122,6 +136,8 @@ class EventSimulator:
         if log_img.shape != self.hw:
             raise ValueError(f"sample shape {log_img.shape} does not match sensor {self.hw}")
         cur = np.ascontiguousarray(log_img, np.float32)
+        if self.lowpass is not None:
+            cur = self.lowpass.step(cur, (t_ns - self.t_ns) * 1e-9)
         if self.noise is not None:
             cur = self._effective_log(cur, t_ns)
         x, y, t, p = self._kernel(self.log_prev, cur, self.ref, self.last_t, self._c_pos,
