@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 #: v2e's dark offset: its cutoff scales with (luma + 20) / 275 for 8-bit luma.
@@ -88,13 +89,10 @@ class PhotoreceptorLowPass:
         input rising linearly from the previous sample's ``L`` to ``log_img``."""
         if not dt_s > 0:
             raise ValueError(f"low-pass steps must move forward in time, got dt {dt_s}")
-        l1 = np.asarray(log_img, np.float64)
-        tau = self.config.time_constant(np.exp(l1) - self.log_eps)
-        a = np.exp(-dt_s / tau)
-        slope_tau = (l1 - self.input) / dt_s * tau
-        self.state = l1 - slope_tau + (self.state - self.input + slope_tau) * a
-        self.input, self._tau = l1, tau
-        return self.state.astype(np.float32)
+        cfg = self.config
+        return _step(self.state, self.input, self._tau,
+                     np.ascontiguousarray(log_img, np.float32), float(dt_s), cfg.cutoff_hz,
+                     cfg.dark_offset, self.log_eps)
 
     def max_step(self, budget: float) -> float:
         """The longest next step (s) over which the filtered signal, relaxing towards the
@@ -105,3 +103,25 @@ class PhotoreceptorLowPass:
         if not far.any():
             return math.inf
         return float(np.min(-self._tau[far] * np.log1p(-budget / gap[far])))
+
+
+@numba.njit(cache=True, nogil=True)
+def _step(state, inp, tau, log_img, dt, cutoff_hz, offset, log_eps):
+    """One filter step in place (``state``, ``inp``, ``tau``: float64[H, W]); returns the
+    new state as float32. The arithmetic of :meth:`BandwidthConfig.time_constant` and the
+    first-order-hold update, per pixel."""
+    h, w = log_img.shape
+    out = np.empty((h, w), np.float32)
+    scale = cutoff_hz / (1.0 + offset) * 2.0 * np.pi
+    for y in range(h):
+        for x in range(w):
+            l1 = np.float64(log_img[y, x])
+            t = 1.0 / (scale * (max(np.exp(l1) - log_eps, 0.0) + offset))
+            a = np.exp(-dt / t)
+            slope_tau = (l1 - inp[y, x]) / dt * t
+            v = l1 - slope_tau + (state[y, x] - inp[y, x] + slope_tau) * a
+            state[y, x] = v
+            inp[y, x] = l1
+            tau[y, x] = t
+            out[y, x] = v
+    return out
