@@ -1,7 +1,10 @@
 """Sensor noise of a DVS pixel array: shot noise, hot pixels and leak events.
 
 All three are off by default. Shot noise and hot pixels are independent Poisson processes
-added to the signal events (they do not move a pixel's reference level). Leak is the slow
+added to the signal events (they do not move a pixel's reference level). Shot noise may
+depend on the light, as v2e models it: the rate falls linearly from ``shot_rate_hz`` in
+the dark to ``shot_bright_factor`` times it at full brightness (v2e: 0.25), pixel by pixel,
+from the intensity of each step's new sample. Leak is the slow
 drift of each pixel's reference that makes real DVS pixels fire ON events without any
 change of light (v2e's model): it is applied as a per-pixel linear drift of the compared
 signal, ``L_eff(t) = L(t) + rate_p * C+_p * t``, so about ``rate_p`` ON events per second.
@@ -19,7 +22,10 @@ class NoiseConfig:
     """Noise rates (all per pixel).
 
     Attributes:
-        shot_rate_hz: Poisson rate of random-polarity events at every pixel.
+        shot_rate_hz: Poisson rate of random-polarity events at every pixel (in the dark).
+        shot_bright_factor: the shot rate at full brightness (linear intensity 1) as a
+            fraction of ``shot_rate_hz``, linear in between (1: the same everywhere, the
+            original model; v2e uses 0.25).
         hot_pixel_fraction: fraction of pixels that are hot (chosen once per sequence).
         hot_pixel_rate_hz: Poisson rate of a hot pixel; each hot pixel has one polarity.
         leak_rate_hz: mean rate of leak ON events.
@@ -27,6 +33,7 @@ class NoiseConfig:
     """
 
     shot_rate_hz: float = 0.0
+    shot_bright_factor: float = 1.0
     hot_pixel_fraction: float = 0.0
     hot_pixel_rate_hz: float = 0.0
     leak_rate_hz: float = 0.0
@@ -38,6 +45,9 @@ class NoiseConfig:
             raise ValueError("noise rates must be >= 0")
         if not 0 <= self.hot_pixel_fraction <= 1:
             raise ValueError("hot_pixel_fraction must be in [0, 1]")
+        if not 0 <= self.shot_bright_factor <= 1:
+            raise ValueError(f"shot_bright_factor must be in [0, 1], got "
+                             f"{self.shot_bright_factor}")
 
     @property
     def enabled(self) -> bool:
@@ -69,15 +79,29 @@ class NoiseModel:
             return None
         return (self.leak_rate * c_pos * t_s).astype(np.float32)
 
-    def events(self, t0_ns: int, t1_ns: int) -> tuple[np.ndarray, ...]:
-        """Shot-noise and hot-pixel events in ``(t0, t1]`` as unsorted ``(x, y, t, p)``."""
+    def events(self, t0_ns: int, t1_ns: int, intensity: np.ndarray | None = None
+               ) -> tuple[np.ndarray, ...]:
+        """Shot-noise and hot-pixel events in ``(t0, t1]`` as unsorted ``(x, y, t, p)``.
+
+        Args:
+            intensity: float[H, W] linear intensity of the step's new sample; needed when
+                shot noise depends on the light (``shot_bright_factor < 1``).
+        """
         cfg, (h, w) = self.config, self.hw
         dt_s = (t1_ns - t0_ns) * 1e-9
         pix, pol = [], []
-        if cfg.shot_rate_hz > 0:
+        if cfg.shot_rate_hz > 0 and cfg.shot_bright_factor == 1:
             n = self.rng.poisson(cfg.shot_rate_hz * dt_s * h * w)
             pix.append(self.rng.integers(0, h * w, n))
             pol.append(self.rng.choice(np.array([-1, 1], np.int8), n))
+        elif cfg.shot_rate_hz > 0:
+            if intensity is None:
+                raise ValueError("shot noise that depends on the light needs the intensity")
+            light = np.clip(np.asarray(intensity, np.float64).ravel(), 0.0, 1.0)
+            rate = cfg.shot_rate_hz * (1.0 + (cfg.shot_bright_factor - 1.0) * light)
+            counts = self.rng.poisson(rate * dt_s)
+            pix.append(np.repeat(np.arange(h * w), counts))
+            pol.append(self.rng.choice(np.array([-1, 1], np.int8), int(counts.sum())))
         if len(self.hot_pixels):
             counts = self.rng.poisson(cfg.hot_pixel_rate_hz * dt_s, len(self.hot_pixels))
             pix.append(np.repeat(self.hot_pixels, counts))

@@ -136,6 +136,8 @@ class EventSimulator:
         if log_img.shape != self.hw:
             raise ValueError(f"sample shape {log_img.shape} does not match sensor {self.hw}")
         cur = np.ascontiguousarray(log_img, np.float32)
+        light = np.exp(cur) - self.log_eps if self.noise is not None and \
+            self.noise.config.shot_bright_factor < 1 else None
         if self.lowpass is not None:
             cur = self.lowpass.step(cur, (t_ns - self.t_ns) * 1e-9)
         if self.noise is not None:
@@ -144,7 +146,7 @@ class EventSimulator:
                                   self._c_neg, self.t_ns, t_ns, self.refractory_ns, TIE_TOL)
         in_order = self._kernel_in_order
         if self.noise is not None:
-            nx, ny, nt, np_ = self.noise.events(self.t_ns, t_ns)
+            nx, ny, nt, np_ = self.noise.events(self.t_ns, t_ns, light)
             if len(nt):
                 x, y = np.concatenate([x, nx]), np.concatenate([y, ny])
                 t, p = np.concatenate([t, nt]), np.concatenate([p, np_])

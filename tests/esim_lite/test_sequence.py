@@ -133,6 +133,24 @@ def test_shot_noise_rate_and_polarity_balance():
     assert all(e.is_sorted() for e in evs)
 
 
+def test_shot_noise_falls_with_the_light_as_configured():
+    """v2e's rule: the dark rate in the dark, ``shot_bright_factor`` of it at full light,
+    linear between; each half of a split image fires at its own Poisson rate."""
+    hw, seconds, steps = (40, 50), 2.0, 200
+    cfg = NoiseConfig(shot_rate_hz=3.0, shot_bright_factor=0.25)
+    model = NoiseModel(cfg, hw, np.random.default_rng(1))
+    img = np.full(hw, 0.0, np.float32)
+    img[:, 25:] = 1.0  # left dark, right full light
+    sim = EventSimulator(img, 0, ContrastThresholds.uniform(0.2, 0.2, hw), noise=model)
+    dt = int(seconds * 1e9 / steps)
+    evs = [sim.step(img, dt * (k + 1)) for k in range(steps)]
+    x = np.concatenate([e.x for e in evs])
+    for side, rate in ((x < 25, 3.0), (x >= 25, 0.75)):
+        expected = rate * seconds * 40 * 25
+        assert abs(side.sum() - expected) < 5 * np.sqrt(expected)
+    assert all(e.is_sorted() for e in evs)
+
+
 def test_hot_pixels_fire_only_where_chosen():
     model, evs = static_simulator(NoiseConfig(hot_pixel_fraction=0.01, hot_pixel_rate_hz=100.0))
     x = np.concatenate([e.x for e in evs]).astype(np.int64)
