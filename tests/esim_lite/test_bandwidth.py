@@ -126,9 +126,3 @@ def test_a_sequence_with_the_low_pass_lags_and_keeps_its_events():
 def test_a_bad_cutoff_fails_at_load_naming_the_key(value):
     with pytest.raises(ConfigError, match="bandwidth.cutoff_hz"):
         load_config(DatagenConfig, None, [f"simulation.events.bandwidth.cutoff_hz={value}"])
-
-
-@pytest.mark.parametrize("value", ["-0.1", "1.5"])
-def test_a_bad_shot_bright_factor_fails_at_load_naming_the_key(value):
-    with pytest.raises(ConfigError, match="shot_bright_factor"):
-        load_config(DatagenConfig, None, [f"simulation.events.noise.shot_bright_factor={value}"])

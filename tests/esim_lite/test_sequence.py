@@ -151,6 +151,12 @@ def test_shot_noise_falls_with_the_light_as_configured():
     assert all(e.is_sorted() for e in evs)
 
 
+@pytest.mark.parametrize("value", [-0.1, 1.5])
+def test_a_bad_shot_bright_factor_is_refused(value):
+    with pytest.raises(ValueError, match="shot_bright_factor"):
+        NoiseConfig(shot_rate_hz=1.0, shot_bright_factor=value)
+
+
 def test_hot_pixels_fire_only_where_chosen():
     model, evs = static_simulator(NoiseConfig(hot_pixel_fraction=0.01, hot_pixel_rate_hz=100.0))
     x = np.concatenate([e.x for e in evs]).astype(np.int64)
