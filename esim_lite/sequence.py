@@ -10,6 +10,7 @@ import numpy as np
 from esim_lite.config import FrameConfig, SimulationConfig
 from esim_lite.core.events import Events
 from esim_lite.core.frames import Frames
+from esim_lite.events.flicker import Flicker
 from esim_lite.events.noise import NoiseModel
 from esim_lite.events.sampling import AdaptiveSampler
 from esim_lite.events.simulator import EventSimulator, log_intensity
@@ -197,12 +198,16 @@ def _run(renderer: Renderer, stage: _Stage, thresholds: ContrastThresholds,
          chunk_events: int) -> Iterator[SimulationChunk]:
     ev_cfg = config.events
     noise = NoiseModel(ev_cfg.noise, rig.event.hw, rng) if ev_cfg.noise.enabled else None
+    flicker = Flicker(ev_cfg.flicker, rig.event.hw, rng) if ev_cfg.flicker.enabled else None
     t_end = int(round(config.duration_s * 1e9))
+
+    def light(image: np.ndarray, t_ns: int) -> np.ndarray:  # what the event camera sees
+        return image if flicker is None else flicker.apply(image, t_ns)
 
     t = 0
     state = stage.at(0)
     pose, twist = state[0], state[1]
-    image = renderer.render("lr", pose, state[2])
+    image = light(renderer.render("lr", pose, state[2]), 0)
     sim = EventSimulator(image, t, thresholds, log_eps=ev_cfg.log_eps,
                          refractory_ns=ev_cfg.refractory_ns, noise=noise,
                          bandwidth=ev_cfg.bandwidth)
@@ -217,11 +222,14 @@ def _run(renderer: Renderer, stage: _Stage, thresholds: ContrastThresholds,
         if sim.lowpass is not None:  # the filtered signal keeps relaxing after a change
             step_s = max(min(step_s, sim.max_step(sampler.budget)),
                          config.sampling.min_step_s)
+        if flicker is not None:  # the lamp changes the light with nothing moving
+            step_s = max(min(step_s, flicker.max_step(sampler.budget)),
+                         config.sampling.min_step_s)
         while True:
             t_new = min(t + max(1, int(round(step_s * 1e9))), t_end)
             new_state = stage.at(t_new)
-            new_log = log_intensity(renderer.render("lr", new_state[0], new_state[2]),
-                                    ev_cfg.log_eps)
+            new_log = log_intensity(light(renderer.render("lr", new_state[0], new_state[2]),
+                                          t_new), ev_cfg.log_eps)
             change = sampler.change(log_img, new_log)
             step_s = sampler.review(change, (t_new - t) * 1e-9)
             if step_s is None:

@@ -10,6 +10,7 @@ import numpy as np
 
 from esim_lite.core.events import Events
 from esim_lite.events.bandwidth import BandwidthConfig, PhotoreceptorLowPass
+from esim_lite.events.flicker import FlickerConfig
 from esim_lite.events.kernel import NEVER, TIE_TOL, esim_step_sorted
 from esim_lite.events.noise import NoiseConfig, NoiseModel
 from esim_lite.events.reference import numpy_step, python_step
@@ -28,6 +29,8 @@ class EventConfig:
         refractory_ns: a pixel's events closer than this to its previous one are dropped.
         noise: shot noise, hot pixels and leak (all off by default).
         bandwidth: the photoreceptor's intensity-dependent low-pass (off by default).
+        flicker: a lamp flickering on part of the view (off by default; the light, not the
+            sensor, but set with the sensor's realism).
     """
 
     log_eps: float = 1e-3
@@ -35,6 +38,7 @@ class EventConfig:
     refractory_ns: int = 0
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     bandwidth: BandwidthConfig = field(default_factory=BandwidthConfig)
+    flicker: FlickerConfig = field(default_factory=FlickerConfig)
 
     def __post_init__(self) -> None:
         if self.log_eps <= 0:
