@@ -15,6 +15,7 @@ ids are 0 for it and ``k + 1`` for object ``k``.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -61,6 +62,23 @@ class ObjectPatch:
 
 
 @dataclass(frozen=True, eq=False)
+class PackedSurfaces:
+    """The objects' pose-free data as flat arrays for compiled kernels.
+
+    Attributes:
+        geom: float64[K, 6]: half width, half height, then the plane-to-texture map (col
+            scale, col offset, row scale, row offset).
+        shapes: int64[K, 3]: offset into the flat arrays, h, w.
+        alphas, texels: float64, every object's alpha / texture raveled one after another.
+    """
+
+    geom: np.ndarray
+    shapes: np.ndarray
+    alphas: np.ndarray
+    texels: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
 class DynamicScene:
     """The static background plane and the moving objects in front of it."""
 
@@ -70,6 +88,31 @@ class DynamicScene:
     def __post_init__(self) -> None:
         if len(self.objects) > MAX_OBJECTS:
             raise ValueError(f"at most {MAX_OBJECTS} objects, got {len(self.objects)}")
+
+    @cached_property
+    def packed(self) -> PackedSurfaces:
+        """The objects' surfaces for compiled kernels (built once, read-only)."""
+        k = len(self.objects)
+        geom = np.zeros((k, 6))
+        shapes = np.zeros((k, 3), np.int64)
+        offset = 0
+        for j, obj in enumerate(self.objects):
+            m = obj.surface.texture_from_plane()
+            geom[j] = (obj.surface.width_m / 2, obj.surface.height_m / 2, m[0, 0], m[0, 2],
+                       m[1, 1], m[1, 2])
+            h, w = obj.alpha.shape
+            shapes[j] = (offset, h, w)
+            offset += h * w
+
+        def flat(arrays):
+            return np.concatenate([a.ravel() for a in arrays]).astype(np.float64) if k \
+                else np.zeros(0)
+
+        packed = PackedSurfaces(geom, shapes, flat([o.alpha for o in self.objects]),
+                                flat([o.surface.texture for o in self.objects]))
+        for a in (packed.geom, packed.shapes, packed.alphas, packed.texels):
+            a.flags.writeable = False
+        return packed
 
     def object_poses(self, t_s: float) -> tuple[Pose, ...]:
         """Object-to-world poses at ``t_s`` (in object order)."""

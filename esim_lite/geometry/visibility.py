@@ -15,7 +15,6 @@ together.
 
 from __future__ import annotations
 
-import functools
 import math
 from dataclasses import dataclass
 
@@ -198,9 +197,10 @@ def surface_truth(scene: DynamicScene, intrinsics: Intrinsics, camera: Pose,
     if len(object_poses) != k or len(object_twists) != k:
         raise ValueError(f"{len(object_poses)} object poses and {len(object_twists)} twists "
                          f"for {k} objects")
-    r_wo, t_wo, geom, shapes, alphas, _ = pack_objects(scene, object_poses)
+    r_wo, t_wo = object_frames(scene, object_poses)
+    packed = scene.packed
     boxes = np.array([sample_box(intrinsics, camera, o, g[0], g[1])
-                      for o, g in zip(object_poses, geom)], np.int64).reshape(k, 4)
+                      for o, g in zip(object_poses, packed.geom)], np.int64).reshape(k, 4)
     v_o = np.array([tw.v_w for tw in object_twists], np.float64).reshape(k, 3)
     w_o = np.array([tw.w_w for tw in object_twists], np.float64).reshape(k, 3)
     flow, depth, ids = _truth_kernel(
@@ -208,7 +208,8 @@ def surface_truth(scene: DynamicScene, intrinsics: Intrinsics, camera: Pose,
         intrinsics.cy, np.ascontiguousarray(camera.r_wc, np.float64),
         np.ascontiguousarray(camera.t_wc, np.float64),
         np.asarray(camera_twist.v_w, np.float64), np.asarray(camera_twist.w_w, np.float64),
-        r_wo, t_wo, v_o, w_o, geom, shapes, alphas, boxes, ALPHA_CUTOFF, MISS)
+        r_wo, t_wo, v_o, w_o, packed.geom, packed.shapes, packed.alphas, boxes, ALPHA_CUTOFF,
+        MISS)
     return SurfaceTruth(flow, depth, ids)
 
 
@@ -234,46 +235,16 @@ def sample_box(fine: Intrinsics, camera: Pose, obj: Pose, half_w: float, half_h:
     return x0, x1, y0, y1
 
 
-def pack_objects(scene: DynamicScene, object_poses: tuple[Pose, ...], textures: bool = False
-                 ) -> tuple[np.ndarray, ...]:
-    """The objects as flat arrays for compiled kernels: poses ``r_wo`` [K,3,3] and ``t_wo``
-    [K,3]; ``geom`` [K,6] (half width, half height, then the plane-to-texture map: col
-    scale, col offset, row scale, row offset); ``shapes`` int64[K,3] (offset into the flat
-    arrays, h, w); ``alphas`` and (with ``textures``) ``texels``: float64, every object's
-    alpha / texture raveled one after another (``texels`` empty otherwise)."""
+def object_frames(scene: DynamicScene, object_poses: tuple[Pose, ...]
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The objects' poses as flat arrays for compiled kernels: ``r_wo`` float64[K, 3, 3]
+    and ``t_wo`` float64[K, 3] (their surfaces: :attr:`DynamicScene.packed`)."""
     k = len(scene.objects)
     if len(object_poses) != k:
         raise ValueError(f"{len(object_poses)} object poses for {k} objects")
     r_wo = np.array([p.r_wc for p in object_poses], np.float64).reshape(k, 3, 3)
     t_wo = np.array([p.t_wc for p in object_poses], np.float64).reshape(k, 3)
-    return (r_wo, t_wo) + _packed_surfaces(scene, textures)
-
-
-@functools.lru_cache(maxsize=16)
-def _packed_surfaces(scene: DynamicScene, textures: bool) -> tuple[np.ndarray, ...]:
-    """The pose-free part of :func:`pack_objects`, built once per scene (scenes hash by
-    identity)."""
-    k = len(scene.objects)
-    geom = np.zeros((k, 6))
-    shapes = np.zeros((k, 3), np.int64)
-    offset = 0
-    for j, obj in enumerate(scene.objects):
-        m = obj.surface.texture_from_plane()
-        geom[j] = (obj.surface.width_m / 2, obj.surface.height_m / 2, m[0, 0], m[0, 2],
-                   m[1, 1], m[1, 2])
-        h, w = obj.alpha.shape
-        shapes[j] = (offset, h, w)
-        offset += h * w
-
-    def flat(arrays):
-        return np.concatenate([a.ravel() for a in arrays]).astype(np.float64) if k else \
-            np.zeros(0)
-
-    alphas = flat([o.alpha for o in scene.objects])
-    texels = flat([o.surface.texture for o in scene.objects]) if textures else np.zeros(0)
-    for a in (geom, shapes, alphas, texels):
-        a.flags.writeable = False
-    return geom, shapes, alphas, texels
+    return r_wo, t_wo
 
 
 @numba.njit(cache=True, nogil=True)

@@ -31,7 +31,7 @@ from esim_lite.geometry.visibility import (
     bilinear_at,
     camera_in_objects,
     nearest_hit,
-    pack_objects,
+    object_frames,
     sample_box,
     shade,
     trace,
@@ -73,17 +73,18 @@ class ReferenceRenderer:
         cam, s, scene = self.cameras[camera], self.supersample[camera], self.scenes[camera]
         fine = self._fine[camera]
         objects = tuple(objects)
-        r_wo, t_wo, geom, shapes, alphas, texels = pack_objects(scene, objects, textures=True)
-        boxes = np.array([sample_box(fine, pose, o, g[0], g[1]) for o, g in zip(objects, geom)],
-                         np.int64).reshape(len(objects), 4)
+        r_wo, t_wo = object_frames(scene, objects)
+        packed = scene.packed
+        boxes = np.array([sample_box(fine, pose, o, g[0], g[1])
+                          for o, g in zip(objects, packed.geom)], np.int64).reshape(-1, 4)
         tex, bg_map = self._background[camera]
         if self.threads is not None:
             numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
         img, missed = _render_kernel(
             cam.height, cam.width, s, fine.fx, fine.fy, fine.cx, fine.cy,
             np.ascontiguousarray(pose.r_wc, np.float64),
-            np.ascontiguousarray(pose.t_wc, np.float64), tex, bg_map, r_wo, t_wo, geom,
-            shapes, alphas, texels, boxes, ALPHA_CUTOFF)
+            np.ascontiguousarray(pose.t_wc, np.float64), tex, bg_map, r_wo, t_wo, packed.geom,
+            packed.shapes, packed.alphas, packed.texels, boxes, ALPHA_CUTOFF)
         if missed:
             raise ValueError(f"camera {camera!r} sees past the background plane at this pose")
         return img
