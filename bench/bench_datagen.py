@@ -78,7 +78,7 @@ def run_case(n_seq: int, workers: int, sets: list[str], scale: str = "2",
                 for name in r.sequences():
                     events += r.num_events(name)
                     frames += len(r.frame_event_idx(name))
-                    samples += len(r.read(name).sample_poses)
+                    samples += r.num_samples(name)
         sizes = stored_mb(out)
     return {"seconds": seconds, "events": events, "frames": frames, "samples": samples,
             "peak_mb": peak_mb,

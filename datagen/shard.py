@@ -592,6 +592,10 @@ class ShardReader:
     def num_events(self, name: str) -> int:
         return int(self._group(name)["events/ts"].shape[0])
 
+    def num_samples(self, name: str) -> int:
+        """How many render samples (rows of ``poses``) the sequence took."""
+        return int(self._group(name)["poses"].shape[0])
+
     def frame_names(self, name: str) -> list[str]:
         """Cameras with frames: ``lr`` first, then the HR ones by scale."""
         g = self._group(name)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -219,12 +220,11 @@ def _run(renderer: Renderer, stage: _Stage, thresholds: ContrastThresholds,
 
     while t < t_end and not schedule.done():
         step_s = sampler.propose(log_img, pose, twist, *stage.motion(*state))
-        if sim.lowpass is not None:  # the filtered signal keeps relaxing after a change
-            step_s = max(min(step_s, sim.max_step(sampler.budget)),
-                         config.sampling.min_step_s)
-        if flicker is not None:  # the lamp changes the light with nothing moving
-            step_s = max(min(step_s, flicker.max_step(sampler.budget)),
-                         config.sampling.min_step_s)
+        # what changes with nothing moving: the low-passed signal relaxing, the lamp
+        still = min(sim.max_step(sampler.budget),
+                    math.inf if flicker is None else flicker.max_step(sampler.budget))
+        if still < step_s:
+            step_s = max(still, config.sampling.min_step_s)
         while True:
             t_new = min(t + max(1, int(round(step_s * 1e9))), t_end)
             new_state = stage.at(t_new)

@@ -34,7 +34,8 @@ class RenderConfig:
 
     Attributes:
         backend: ``mitsuba`` (the project's default), ``homography`` (exact and fast, one
-            plane only) or ``reference`` (exact ray tracing in numpy: the slow oracle).
+            plane only) or ``reference`` (the exact ray caster, compiled; planes and
+            moving objects).
         supersample_lr: sub-pixel grid side for the event camera (box filter, s*s samples);
             against an 8x8 render, 3x3 leaves <= 2% extra events from aliasing, 2x2 <= 4.3%.
         supersample_hr: sub-pixel grid side for the HR intensity cameras (frames only).

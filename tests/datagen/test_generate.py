@@ -78,6 +78,7 @@ def test_shard_round_trip_equals_the_simulation(tmp_path):
                          - np.log(eps + seq.frames[cam].intensity)).max()
             assert err <= 0.01 * rec.thresholds.min_threshold
         assert rec.cameras["hr_x2"].width == 128 and rec.cameras["lr"].height == 48
+        assert r.num_samples("seq_000000") == len(seq.sample_poses) == len(rec.sample_poses)
         assert rec.thresholds.pos == pytest.approx(seq.thresholds.pos)
         assert "simulation:" in r.config_yaml and r.schema_version == 1
     with h5py.File(tmp_path / "shard_00000.h5", "r") as f:  # the layout as others read it
