@@ -12,6 +12,7 @@ from esim_lite.config import FrameConfig, SimulationConfig
 from esim_lite.core.events import Events
 from esim_lite.core.frames import Frames
 from esim_lite.events.flicker import Flicker
+from esim_lite.events.latency import readout_rng
 from esim_lite.events.noise import NoiseModel
 from esim_lite.events.sampling import AdaptiveSampler
 from esim_lite.events.simulator import EventSimulator, log_intensity
@@ -174,7 +175,8 @@ def simulate(scene: PlanarScene | DynamicScene, trajectory: BSplineTrajectory,
         scene, trajectory: what is seen (a plane, or a plane with moving objects) and how
             the rig moves; the trajectory must last at least ``config.duration_s``.
         thresholds: the event camera's thresholds (see :func:`sample_thresholds`).
-        rng: drives the noise model only; everything else is already drawn.
+        rng: drives the noise model, the lamp and the readout jitter (a stream derived
+            from it without drawing from it); everything else is already drawn.
         renderer: a renderer for ``config.camera.rig().cameras()``; built from
             ``config.render`` (and closed at the end) when None.
     """
@@ -209,9 +211,11 @@ def _run(renderer: Renderer, stage: _Stage, thresholds: ContrastThresholds,
     state = stage.at(0)
     pose, twist = state[0], state[1]
     image = light(renderer.render("lr", pose, state[2]), 0)
+    latency_rng = readout_rng(rng) if ev_cfg.latency.enabled else None
     sim = EventSimulator(image, t, thresholds, log_eps=ev_cfg.log_eps,
                          refractory_ns=ev_cfg.refractory_ns, noise=noise,
-                         bandwidth=ev_cfg.bandwidth)
+                         bandwidth=ev_cfg.bandwidth, latency=ev_cfg.latency,
+                         latency_rng=latency_rng)
     sampler = AdaptiveSampler(config.sampling, rig.event, thresholds.min_threshold)
     schedule = FrameSchedule(config.frames, config.duration_s)
     log_img = log_intensity(image, ev_cfg.log_eps)
@@ -246,6 +250,10 @@ def _run(renderer: Renderer, stage: _Stage, thresholds: ContrastThresholds,
             yield SimulationChunk(Events.concatenate(events, rig.event.hw), frames,
                                   np.array(poses))
             events, frames, poses, n_events = [], [], [], 0
+    tail = sim.finish()  # the recording stops at the last sample (readout latency)
+    for ft in schedule.due(tail, t):
+        frames.append(stage.frame(renderer, ft))
+    events.append(tail)
     yield SimulationChunk(Events.concatenate(events, rig.event.hw), frames,
                           np.array(poses).reshape(-1, 8))
 

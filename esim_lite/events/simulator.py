@@ -12,6 +12,7 @@ from esim_lite.core.events import Events
 from esim_lite.events.bandwidth import BandwidthConfig, PhotoreceptorLowPass
 from esim_lite.events.flicker import FlickerConfig
 from esim_lite.events.kernel import NEVER, TIE_TOL, esim_step_sorted
+from esim_lite.events.latency import LatencyConfig, ReadoutDelay
 from esim_lite.events.noise import NoiseConfig, NoiseModel
 from esim_lite.events.reference import numpy_step, python_step
 from esim_lite.events.thresholds import ContrastThresholds, ThresholdConfig
@@ -31,6 +32,8 @@ class EventConfig:
         bandwidth: the photoreceptor's intensity-dependent low-pass (off by default).
         flicker: a lamp flickering on part of the view (off by default; the light, not the
             sensor, but set with the sensor's realism).
+        latency: the readout's constant delay and per-event jitter of the timestamps (off by
+            default; see :mod:`esim_lite.events.latency`).
     """
 
     log_eps: float = 1e-3
@@ -39,6 +42,7 @@ class EventConfig:
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     bandwidth: BandwidthConfig = field(default_factory=BandwidthConfig)
     flicker: FlickerConfig = field(default_factory=FlickerConfig)
+    latency: LatencyConfig = field(default_factory=LatencyConfig)
 
     def __post_init__(self) -> None:
         if self.log_eps <= 0:
@@ -87,6 +91,9 @@ class EventSimulator:
         noise: a :class:`NoiseModel`, or None for a noise-free sensor.
         bandwidth: the photoreceptor low-pass (None or disabled: an infinitely fast one,
             the ESIM model).
+        latency: the readout delay of the timestamps (None or disabled: none, events keep
+            their comparator times); :meth:`finish` ends the recording.
+        latency_rng: draws the jitter (needed when ``latency.jitter_us > 0``).
         kernel: ``numba`` (fast), the ``numpy``/``python`` reference implementations, or
             ``torch`` (:mod:`esim_lite.events.torch_kernel`, on CUDA when torch sees a GPU, else on
             the CPU; imported only when asked for).
@@ -95,7 +102,9 @@ class EventSimulator:
     def __init__(self, first_intensity: np.ndarray, t0_ns: int, thresholds: ContrastThresholds,
                  *, log_eps: float = 1e-3, refractory_ns: int = 0,
                  noise: NoiseModel | None = None, kernel: KernelName = "numba",
-                 bandwidth: BandwidthConfig | None = None) -> None:
+                 bandwidth: BandwidthConfig | None = None,
+                 latency: LatencyConfig | None = None,
+                 latency_rng: np.random.Generator | None = None) -> None:
         self.hw = tuple(first_intensity.shape)
         if thresholds.pos_map.shape != self.hw:
             raise ValueError(f"threshold maps {thresholds.pos_map.shape} do not match the "
@@ -117,6 +126,8 @@ class EventSimulator:
         self.log_prev = self._effective_log(first_log, self.t_ns)
         self.ref = self.log_prev.astype(np.float64)
         self.last_t = np.full(self.hw, NEVER, np.int64)
+        self.readout = ReadoutDelay(latency, self.hw, latency_rng) \
+            if latency is not None and latency.enabled else None
 
     def _effective_log(self, log_img: np.ndarray, t_ns: int) -> np.ndarray:
         drift = None if self.noise is None else self.noise.leak_offset(
@@ -133,7 +144,10 @@ class EventSimulator:
         return self.step_log(log_intensity(intensity, self.log_eps), t_ns)
 
     def step_log(self, log_img: np.ndarray, t_ns: int) -> Events:
-        """Like :meth:`step` for a log-intensity image (float32[H, W]); sorted by time."""
+        """Like :meth:`step` for a log-intensity image (float32[H, W]); sorted by time.
+
+        With a readout latency: the events read out by ``t_ns`` (their comparator times
+        earlier, some of them in earlier steps)."""
         t_ns = int(t_ns)
         if t_ns <= self.t_ns:
             raise ValueError(f"samples must move forward in time: {t_ns} <= {self.t_ns}")
@@ -159,5 +173,16 @@ class EventSimulator:
         if not in_order:  # by time, then row, then column (stable: then emission)
             order = np.lexsort((x, y, t))
             x, y, t, p = x[order], y[order], t[order], p[order]
-            return Events(x, y, t, p, self.hw)
-        return Events.trusted(x, y, t, p, self.hw)  # the compiled kernel's own arrays
+            events = Events(x, y, t, p, self.hw)
+        else:
+            events = Events.trusted(x, y, t, p, self.hw)  # the compiled kernel's own arrays
+        return events if self.readout is None else self.readout.step(events, t_ns)
+
+    def finish(self) -> Events:
+        """End the recording at the last sample: the events still waiting for their
+        readout (always none, since every one due by the last sample came out with it) are
+        dropped, as a recording that stops there loses them (see
+        :mod:`esim_lite.events.latency`). Empty without latency."""
+        if self.readout is None:
+            return Events.empty(self.hw)
+        return self.readout.finish(self.t_ns)
