@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from datagen.sensor_ranges import SensorRanges
 from datagen.textures import TextureConfig
 from esim_lite.config import FrameConfig, SimulationConfig
 
@@ -18,6 +19,8 @@ class DatagenConfig:
             3 x 1,000 events, the paper's choice at 128x128) and ends a sequence after 64
             frames plus 4 stacks of events (at most 4 s): about 57 samples of 7 stacks per
             sequence, whatever the scene's event rate.
+        sensor_ranges: which settings of ``simulation.events`` are drawn per sequence
+            (domain randomisation of the sensor; all off: every sequence has that sensor).
         textures: where plane textures come from and how they vary.
         sequences_per_shard: sequences per HDF5 file (the unit of work and of resumption).
     """
@@ -25,6 +28,7 @@ class DatagenConfig:
     simulation: SimulationConfig = field(default_factory=lambda: SimulationConfig(
         duration_s=4.0, frames=FrameConfig(mode="events", every_events=3000, count=64,
                                            tail_events=12000)))
+    sensor_ranges: SensorRanges = field(default_factory=SensorRanges)
     textures: TextureConfig = field(default_factory=TextureConfig)
     sequences_per_shard: int = 4
 

@@ -29,6 +29,7 @@ from tqdm import tqdm
 from datagen.config import DatagenConfig
 from datagen.lock import FolderLock, stale_temporary
 from datagen.sampling import sample_sequence
+from datagen.sensor_ranges import SensorRanges
 from datagen.shard import ShardReader, ShardWriter
 from datagen.textures import TextureSampler
 from esim_lite.core.atomic import atomic_path
@@ -133,7 +134,8 @@ def write_shard(plan: ShardPlan, config: DatagenConfig, seed: int, progress=None
             writer = ShardWriter(tmp, config_yaml, seed, list(plan.sequences))
             try:
                 for index in plan.sequences:
-                    e, f = _write_sequence(writer, sim, textures, seed, index, progress)
+                    e, f = _write_sequence(writer, sim, config.sensor_ranges, textures,
+                                           seed, index, progress)
                     n_events, n_frames = n_events + e, n_frames + f
                     if progress:
                         progress(None)
@@ -150,9 +152,10 @@ def write_shard(plan: ShardPlan, config: DatagenConfig, seed: int, progress=None
                        time.perf_counter() - start)
 
 
-def _write_sequence(writer: ShardWriter, sim, textures: TextureSampler, seed: int, index: int,
-                    progress) -> tuple[int, int]:
-    spec = sample_sequence(sim, textures, seed, index)
+def _write_sequence(writer: ShardWriter, sim, sensor: SensorRanges, textures: TextureSampler,
+                    seed: int, index: int, progress) -> tuple[int, int]:
+    spec = sample_sequence(sim, textures, seed, index, sensor)
+    sim = dataclasses.replace(sim, events=spec.events)  # the sequence's own sensor
     rig = sim.camera.rig()
     renderer = make_renderer(spec.scene, rig.cameras(), sim.render,
                              sample_footprints(spec.scene, spec.trajectory, rig, sim.render))

@@ -5,18 +5,22 @@ Each sequence owns a ``SeedSequence([seed, index])``; its components draw from i
 child streams, so a sequence is the same whichever worker, shard or order produces it, and
 changing e.g. the texture source leaves trajectories and thresholds unchanged. The objects
 (and the static-camera draw) have streams of their own, after the original four, so a
-configuration without objects draws exactly what it drew before objects existed.
+configuration without objects draws exactly what it drew before objects existed; the
+sensor (``sensor_ranges``) has the last one, for the same reason.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
+from datagen.sensor_ranges import SensorRanges
 from datagen.textures import TextureSampler
 from esim_lite.config import SimulationConfig
+from esim_lite.events.simulator import EventConfig
 from esim_lite.events.thresholds import ContrastThresholds, sample_thresholds
 from esim_lite.geometry.object_sampling import sample_objects, static_trajectory
 from esim_lite.geometry.objects import DynamicScene, ObjectPatch
@@ -30,14 +34,19 @@ from esim_lite.geometry.trajectory import (
 
 def sequence_streams(seed: int, index: int) -> dict[str, np.random.Generator]:
     """Independent generators for each random component of sequence ``index``."""
-    names = ("trajectory", "texture", "thresholds", "noise", "objects", "object_textures")
+    names = ("trajectory", "texture", "thresholds", "noise", "objects", "object_textures",
+             "sensor")
     children = np.random.SeedSequence([int(seed), int(index)]).spawn(len(names))
     return {n: np.random.default_rng(c) for n, c in zip(names, children)}
 
 
 @dataclass(frozen=True, eq=False)
 class SequenceSpec:
-    """Everything drawn for one sequence before simulating it."""
+    """Everything drawn for one sequence before simulating it.
+
+    ``events`` is the sequence's sensor: the config's own (the same object) unless
+    ``sensor_drawn``, when it was drawn from the dataset's ``sensor_ranges``.
+    """
 
     index: int
     seed: int
@@ -46,7 +55,9 @@ class SequenceSpec:
     thresholds: ContrastThresholds
     texture_name: str
     noise_rng: np.random.Generator
+    events: EventConfig
     static_camera: bool = False
+    sensor_drawn: bool = False
 
     @property
     def objects(self) -> tuple[ObjectPatch, ...]:
@@ -65,10 +76,15 @@ def texture_width(sim: SimulationConfig, plane_width_m: float) -> int:
     return int(np.ceil(plane_width_m * f_hr / sim.trajectory.height_m[0]))
 
 
-def sample_sequence(sim: SimulationConfig, textures: TextureSampler, seed: int, index: int
-                    ) -> SequenceSpec:
-    """Draw sequence ``index`` of the dataset with master ``seed``."""
+def sample_sequence(sim: SimulationConfig, textures: TextureSampler, seed: int, index: int,
+                    sensor: SensorRanges | None = None) -> SequenceSpec:
+    """Draw sequence ``index`` of the dataset with master ``seed``; with ``sensor`` ranges
+    on, its sensor too (everything else then sees that sensor: thresholds' mismatch, the
+    static-camera rule)."""
     rng = sequence_streams(seed, index)
+    drawn = sensor is not None and sensor.enabled
+    if drawn:
+        sim = dataclasses.replace(sim, events=sensor.draw(sim.events, rng["sensor"]))
     rig = sim.camera.rig()
     traj = sample_trajectory(sim.trajectory, sim.duration_s, rig.event, rng["trajectory"])
     n_objects, static = draw_dynamics(sim, rng["objects"])
@@ -80,7 +96,8 @@ def sample_sequence(sim: SimulationConfig, textures: TextureSampler, seed: int, 
     thresholds = sample_thresholds(sim.events.thresholds, rig.event.hw, rng["thresholds"])
     plane = PlanarScene(tex, width_m, height_m)
     if not sim.objects.enabled:
-        return SequenceSpec(index, seed, plane, traj, thresholds, name, rng["noise"])
+        return SequenceSpec(index, seed, plane, traj, thresholds, name, rng["noise"],
+                            sim.events, sensor_drawn=drawn)
     finest = rig.event.fx * max(sim.camera.scales)
     draws = sample_objects(sim.objects, n_objects, sim.duration_s, rig.event, finest, traj,
                            rng["objects"])
@@ -94,7 +111,7 @@ def sample_sequence(sim: SimulationConfig, textures: TextureSampler, seed: int, 
                                                draw.width_m, draw.height_m),
                                    draw.alpha, draw.trajectory, f"{oname} ({draw.shape})"))
     return SequenceSpec(index, seed, DynamicScene(plane, tuple(objects)), traj, thresholds,
-                        name, rng["noise"], static)
+                        name, rng["noise"], sim.events, static, drawn)
 
 
 def draw_dynamics(sim: SimulationConfig, rng: np.random.Generator) -> tuple[int, bool]:

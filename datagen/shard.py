@@ -10,7 +10,10 @@ seq_000012/                      attrs: sensor_resolution [H, W], num_events, nu
                                         contrast_threshold_pos, contrast_threshold_neg,
                                         renderer, texture, frame_dtype; with moving
                                         objects in the config also num_objects,
-                                        static_camera
+                                        static_camera; with sensor_ranges on also the
+                                        sequence's sensor (SENSOR_ATTRS: refractory_ns,
+                                        mismatch_std, shot_rate_hz, ..., flicker_hz
+                                        (0 = no lamp), flicker_depth, flicker_area)
   events/xs, ys      int16[N]    column, row
   events/ts          float64[N]  seconds (exact to the nanosecond for t < 10^6 s)
   events/ps          uint8[N]    1 = ON (brighter), 0 = OFF
@@ -42,7 +45,7 @@ seq_000012/                      attrs: sensor_resolution [H, W], num_events, nu
 Frames are stored as float16 when its rounding (relative 2^-12) changes ``log(eps + I)`` by
 at most 1% of the sequence's smallest contrast threshold, otherwise as float32. Ground truth
 is stored as the simulator computed it (no rounding), gzip-compressed like the frames.
-A configuration without objects and without ground truth writes none of the optional
+A configuration without objects, ground truth or sensor ranges writes none of the optional
 attributes, groups or datasets, so its shards are what they were before these existed.
 """
 
@@ -62,6 +65,7 @@ from esim_lite.config import FrameConfig
 from esim_lite.core.dataconf import from_mapping
 from esim_lite.core.events import Events
 from esim_lite.core.frames import Frames
+from esim_lite.events.simulator import EventConfig
 from esim_lite.events.thresholds import ContrastThresholds
 from esim_lite.geometry.camera import Intrinsics
 from esim_lite.geometry.objects import DynamicScene
@@ -79,11 +83,32 @@ _COMPRESSION = {"compression": "gzip", "compression_opts": 1, "shuffle": True}
 GROUND_TRUTH_KINDS = ("flow", "depth", "ids")
 _GROUND_TRUTH_DTYPE = {"flow": np.dtype(np.float32), "depth": np.dtype(np.float32),
                        "ids": np.dtype(np.uint8)}
+#: Sequence attributes recording a drawn sensor (``sensor_ranges``), in storage order.
+SENSOR_ATTRS = ("refractory_ns", "mismatch_std", "shot_rate_hz", "shot_bright_factor",
+                "leak_rate_hz", "hot_pixel_fraction", "hot_pixel_rate_hz", "cutoff_hz",
+                "flicker_hz", "flicker_depth", "flicker_area")
 
 
 def frame_dtype(min_threshold: float) -> np.dtype:
     """float16 if its log-intensity rounding is <= 1% of ``min_threshold``, else float32."""
     return np.dtype(np.float16 if FLOAT16_LOG_ERROR <= 0.01 * min_threshold else np.float32)
+
+
+def sensor_attrs(events: EventConfig) -> dict[str, float]:
+    """The :data:`SENSOR_ATTRS` of one sequence's sensor (``refractory_ns`` an int, the
+    rest floats; ``flicker_hz`` 0 when it has no lamp)."""
+    noise, flicker = events.noise, events.flicker
+    values = {"refractory_ns": int(events.refractory_ns),
+              "mismatch_std": events.thresholds.mismatch_std,
+              "shot_rate_hz": noise.shot_rate_hz,
+              "shot_bright_factor": noise.shot_bright_factor,
+              "leak_rate_hz": noise.leak_rate_hz,
+              "hot_pixel_fraction": noise.hot_pixel_fraction,
+              "hot_pixel_rate_hz": noise.hot_pixel_rate_hz,
+              "cutoff_hz": events.bandwidth.cutoff_hz,
+              "flicker_hz": flicker.frequency_hz if flicker.enabled else 0.0,
+              "flicker_depth": flicker.depth, "flicker_area": flicker.area_fraction}
+    return {k: values[k] if k == "refractory_ns" else float(values[k]) for k in SENSOR_ATTRS}
 
 
 def sequence_name(index: int) -> str:
@@ -163,9 +188,9 @@ class ShardWriter:
                        log_eps: float, renderer: str,
                        ground_truth: tuple[str, ...] = ()) -> None:
         """Start the group of sequence ``spec.index`` (its scene, objects, trajectory,
-        thresholds and seed come from the spec; ``renderer`` names the backend that made its
-        frames; ``ground_truth``: the kinds of :data:`GROUND_TRUTH_KINDS` every frame
-        carries, for every camera).
+        thresholds, seed and drawn sensor come from the spec; ``renderer`` names the
+        backend that made its frames; ``ground_truth``: the kinds of
+        :data:`GROUND_TRUTH_KINDS` every frame carries, for every camera).
 
         Raises:
             ValueError: an unknown ground truth kind.
@@ -220,6 +245,8 @@ class ShardWriter:
                          "duration_s": trajectory.duration_s})
         if isinstance(spec.scene, DynamicScene):  # a configuration with moving objects
             self._write_objects(g, spec)
+        if spec.sensor_drawn:  # a configuration with sensor ranges
+            g.attrs.update(sensor_attrs(spec.events))
         if thresholds.has_mismatch:
             th = g.create_group("thresholds")
             th.create_dataset("pos_map", data=thresholds.pos_map.astype(np.float32))
@@ -339,7 +366,8 @@ class SequenceSummary:
     ``frame_hw`` and ``stored_bytes`` are keyed by camera (``lr`` first, then HR by scale);
     ``stored_bytes`` also has ``events`` and each stored ground truth kind (all cameras
     together): compressed bytes on disk. ``num_objects`` is None for a sequence of a
-    configuration without moving objects; ``ground_truth`` lists the kinds stored.
+    configuration without moving objects; ``ground_truth`` lists the kinds stored;
+    ``sensor`` is the drawn sensor (:data:`SENSOR_ATTRS`), None without sensor ranges.
     """
 
     name: str
@@ -363,6 +391,7 @@ class SequenceSummary:
     num_objects: int | None = None
     static_camera: bool = False
     ground_truth: tuple[str, ...] = ()
+    sensor: dict[str, float] | None = None
 
 
 def _stored_bytes(node: h5py.Group | h5py.Dataset) -> int:
@@ -562,7 +591,7 @@ class ShardReader:
             str(a["frame_dtype"]), float(a["contrast_threshold_pos"]),
             float(a["contrast_threshold_neg"]), "thresholds" in g, str(a["renderer"]),
             str(a["texture"]), stored, self.num_objects(name), self.static_camera(name),
-            kinds)
+            kinds, self.sensor(name))
 
     def cameras(self, name: str) -> dict[str, Intrinsics]:
         g = self._group(name)["cameras"]
@@ -652,6 +681,15 @@ class ShardReader:
         """How many objects move in the sequence (None: its configuration had none)."""
         n = self._group(name).attrs.get("num_objects")
         return None if n is None else int(n)
+
+    def sensor(self, name: str) -> dict[str, float] | None:
+        """The sequence's drawn sensor (:data:`SENSOR_ATTRS` to values; ``refractory_ns``
+        an int); None when its configuration drew none (the stored config's
+        ``simulation.events`` is then every sequence's sensor)."""
+        a = self._group(name).attrs
+        if SENSOR_ATTRS[0] not in a:
+            return None
+        return {k: int(a[k]) if k == "refractory_ns" else float(a[k]) for k in SENSOR_ATTRS}
 
     def static_camera(self, name: str) -> bool:
         """Whether the camera stands still (only the objects move)."""

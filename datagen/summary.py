@@ -18,6 +18,21 @@ def _dynamics(s: SequenceSummary) -> str:
     return text
 
 
+def _sensor(s: SequenceSummary) -> str:
+    """A third line with the sequence's drawn sensor (empty without sensor ranges)."""
+    v = s.sensor
+    if v is None:
+        return ""
+    lamp = (f"{v['flicker_hz']:g} Hz depth {v['flicker_depth']:.2f} area "
+            f"{v['flicker_area']:.2f}") if v["flicker_hz"] > 0 else "none"
+    return (f"\n    sensor: refractory {v['refractory_ns'] / 1e3:g} us, mismatch "
+            f"{v['mismatch_std']:.3f}, shot {v['shot_rate_hz']:.3g} Hz (bright x"
+            f"{v['shot_bright_factor']:.2f}), leak {v['leak_rate_hz']:.3g} Hz, hot pixels "
+            f"{v['hot_pixel_fraction']:.2%} at {v['hot_pixel_rate_hz']:.3g} Hz, cutoff "
+            f"{v['cutoff_hz']:.3g} Hz" + (" (ideal)" if v["cutoff_hz"] == 0 else "")
+            + f", lamp {lamp}")
+
+
 def describe_shard(path: str | Path) -> str:
     """A human-readable summary of one shard: per sequence and totals."""
     lines, totals = [], {"events": 0, "frames": 0}
@@ -42,7 +57,8 @@ def describe_shard(path: str | Path) -> str:
                 f"{' + per-pixel maps' if s.per_pixel_thresholds else ''}; texture {s.texture}; "
                 f"renderer {s.renderer}{_dynamics(s)}\n"
                 f"    stored MB: events {s.stored_bytes['events'] / 1e6:.1f}, frames {per_cam}"
-                + "".join(f", {k} {s.stored_bytes[k] / 1e6:.1f}" for k in s.ground_truth))
+                + "".join(f", {k} {s.stored_bytes[k] / 1e6:.1f}" for k in s.ground_truth)
+                + _sensor(s))
             totals["events"] += s.num_events
             totals["frames"] += s.num_frames
     lines.append(f"  total: {totals['events']:,} events, {totals['frames']} frames")

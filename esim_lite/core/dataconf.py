@@ -5,7 +5,8 @@ turns a mapping (usually ``yaml.safe_load`` output) into such a dataclass, recur
 nested dataclasses and tuples, rejecting unknown keys and wrong types with a message that
 names the source file and the dotted key. ``--set a.b=c`` overrides go through
 :func:`apply_overrides`, and a CLI's own typed flags through :func:`apply_values`, so they
-get the same checks; :func:`load_config` is the one loader the command lines share.
+get the same checks; :func:`load_config` is the one loader the command lines share, and
+layers several files (a partial preset over a full config) by a deep merge in order.
 """
 
 from __future__ import annotations
@@ -184,35 +185,62 @@ def load_yaml(cls: type[T], path: str | Path, overrides: Sequence[str] | None = 
     return load_config(cls, path, overrides or ())
 
 
-def load_config(cls: type[T], path: str | Path | None, overrides: Sequence[str] = (),
-                values: Mapping[str, Any] | None = None) -> T:
-    """What a command line's ``--config PATH --set KEY=VALUE ...`` stands for.
+def load_config(cls: type[T], path: str | Path | Sequence[str | Path] | None,
+                overrides: Sequence[str] = (), values: Mapping[str, Any] | None = None) -> T:
+    """What a command line's ``--config PATH [--config PATH ...] --set KEY=VALUE ...``
+    stands for.
 
-    The YAML at ``path`` (``None``: the defaults of ``cls``), then the ``key=value``
-    ``overrides`` (values parsed as YAML), then ``values``: dotted keys to typed values (a
-    CLI's own flags, e.g. ``{"simulation.camera.scales": [2, 4]}``), which win over both.
-    Every value passes the same checks as the file's.
+    The YAML at ``path``, or at each of several paths in order, later files overriding
+    earlier ones key by key (a deep merge of their mappings; lists are replaced whole), so
+    a partial file such as a sensor preset loads on top of a dataset config (``None`` or
+    no paths: the defaults of ``cls``); then the ``key=value`` ``overrides`` (values parsed
+    as YAML), then ``values``: dotted keys to typed values (a CLI's own flags, e.g.
+    ``{"simulation.camera.scales": [2, 4]}``), which win over both. Every value passes the
+    same checks as the file's.
 
     Raises:
-        FileNotFoundError: ``path`` does not exist.
-        ConfigError: bad YAML, unknown key or rejected value, naming the source and key.
+        FileNotFoundError: a path does not exist.
+        ConfigError: bad YAML, unknown key or rejected value, naming the key and the file
+            that holds it (of several, the first whose layer makes the config invalid;
+            an override's error names the last file, as with one).
     """
-    source = "--set"
-    data: Any = {}
-    if path is not None:
-        path, source = Path(path), str(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: config file not found")
-        try:
-            data = yaml.safe_load(path.read_text()) or {}
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
-        if not isinstance(data, Mapping):
-            raise ConfigError(f"{path}: the top level must be a mapping of sections (key: "
-                              f"value), not a {type(data).__name__}")
+    paths = [] if path is None else [path] if isinstance(path, (str, Path)) else list(path)
+    layers = [(str(p), _read_mapping(Path(p))) for p in paths]
+    source = layers[-1][0] if layers else "--set"
+    data: dict[str, Any] = {}
+    for _, layer in layers:
+        data = _deep_merge(data, layer)
     data = apply_overrides(data, overrides, source=source)
     data = apply_values(data, values or {}, source=source)
-    return from_mapping(cls, data, source=source)
+    try:
+        return from_mapping(cls, data, source=source)
+    except ConfigError:
+        if len(layers) > 1:
+            _blame_layer(cls, layers)
+        raise
+
+
+def _read_mapping(path: Path) -> dict[str, Any]:
+    """The top-level mapping of the YAML file at ``path`` (empty for an empty file)."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: config file not found")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{path}: the top level must be a mapping of sections (key: "
+                          f"value), not a {type(data).__name__}")
+    return dict(data)
+
+
+def _blame_layer(cls: type, layers: Sequence[tuple[str, Mapping[str, Any]]]) -> None:
+    """Raise the error of the first file whose layer, merged over the files before it, makes
+    ``cls`` invalid (named as that file's); return if every prefix of the layers is valid."""
+    data: dict[str, Any] = {}
+    for source, layer in layers:
+        data = _deep_merge(data, layer)
+        from_mapping(cls, data, source=source)
 
 
 def apply_overrides(data: Mapping[str, Any], overrides: Sequence[str], *,

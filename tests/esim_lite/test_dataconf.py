@@ -94,3 +94,47 @@ def test_load_config_applies_file_then_set_then_typed_values(tmp_path):
         load_config(SimulationConfig, path, values={"camera.width": "wide"})
     with pytest.raises(ConfigError, match=r"--set: camera.widht: unknown key"):
         load_config(SimulationConfig, None, values={"camera.widht": 3})
+
+
+def test_several_files_layer_in_order_key_by_key(tmp_path):
+    """Later files override earlier ones key by key (a deep merge), so a partial preset
+    loads on top of a full config; ``--set`` and typed values still win over all files."""
+    from esim_lite.core.dataconf import load_config
+
+    base = tmp_path / "base.yaml"
+    base.write_text("duration_s: 2\ncamera:\n  width: 80\n  scales: [2]\nevents:\n"
+                    "  refractory_ns: 5\n  noise:\n    shot_rate_hz: 1.0\n")
+    preset = tmp_path / "preset.yaml"
+    preset.write_text("events:\n  noise:\n    leak_rate_hz: 0.5\n  refractory_ns: 7\n")
+    last = tmp_path / "last.yaml"
+    last.write_text("events:\n  refractory_ns: 9\ncamera:\n  scales: [4]\n")
+    cfg = load_config(SimulationConfig, [base, preset])
+    assert cfg.duration_s == 2.0 and cfg.camera.width == 80  # kept from the base
+    assert cfg.events.noise.shot_rate_hz == 1.0 and cfg.events.noise.leak_rate_hz == 0.5
+    assert cfg.events.refractory_ns == 7
+    cfg = load_config(SimulationConfig, [base, preset, last], ["duration_s=3"])
+    assert cfg.events.refractory_ns == 9 and cfg.camera.scales == (4,)  # lists replaced
+    assert cfg.duration_s == 3.0 and cfg.events.noise.leak_rate_hz == 0.5
+    assert load_config(SimulationConfig, [preset, base]).events.refractory_ns == 5
+    assert load_config(SimulationConfig, [base]) == load_config(SimulationConfig, base)
+    assert load_config(SimulationConfig, []) == SimulationConfig()
+
+
+@pytest.mark.parametrize("text, key, problem", [
+    ("events:\n  noise:\n    shot_rate: 1\n", "events.noise.shot_rate", "unknown key"),
+    ("camera:\n  width: wide\n", "camera.width", "expected an integer"),
+    ("events:\n  refractory_ns: -1\n", "events", "refractory_ns must be >= 0"),
+])
+def test_a_bad_key_in_a_later_file_names_that_file(tmp_path, text, key, problem):
+    from esim_lite.core.dataconf import load_config
+
+    first, second, third = (tmp_path / f"{n}.yaml" for n in ("first", "second", "third"))
+    first.write_text("duration_s: 2\n")
+    second.write_text(text)
+    third.write_text("duration_s: 3\n")
+    with pytest.raises(ConfigError) as err:
+        load_config(SimulationConfig, [first, second, third])
+    message = str(err.value)
+    assert message.startswith(f"{second}: ") and key in message and problem in message
+    with pytest.raises(FileNotFoundError, match="nope.yaml"):
+        load_config(SimulationConfig, [first, tmp_path / "nope.yaml"])
