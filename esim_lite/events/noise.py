@@ -7,13 +7,18 @@ the dark to ``shot_bright_factor`` times it at full brightness (v2e: 0.25), pixe
 from the intensity of each step's new sample. Leak is the slow
 drift of each pixel's reference that makes real DVS pixels fire ON events without any
 change of light (v2e's model): it is applied as a per-pixel linear drift of the compared
-signal, ``L_eff(t) = L(t) + rate_p * C+_p * t``, so about ``rate_p`` ON events per second.
+signal, ``L_eff(t) = L(t) + rate_p * C+_p * t``, so about ``rate_p`` ON events per second;
+each pixel starts a random share of the way to its next leak event (a real sensor has been
+leaking long before a recording starts), so leak events come at their rate from the first
+second instead of after ``1 / rate_p``. Noise events obey the refractory period as signal
+events do (:func:`refractory_noise`).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numba
 import numpy as np
 
 
@@ -70,8 +75,10 @@ class NoiseModel:
         if config.leak_rate_hz > 0:
             jitter = 1 + config.leak_rate_jitter * rng.standard_normal(hw)
             self.leak_rate = np.maximum(config.leak_rate_hz * jitter, 0.0)
+            self.leak_phase = rng.random(hw)
         else:
             self.leak_rate = None
+            self.leak_phase = None
 
     def leak_offset(self, c_pos: np.ndarray, t_s: float) -> np.ndarray | None:
         """float32[H, W] drift to add to the log image at time ``t_s`` (None if no leak)."""
@@ -113,3 +120,57 @@ class NoiseModel:
         t = t0_ns + 1 + self.rng.integers(0, max(t1_ns - t0_ns, 1), len(flat))
         return ((flat % w).astype(np.int16), (flat // w).astype(np.int16), t.astype(np.int64),
                 np.concatenate(pol).astype(np.int8))
+
+
+@numba.njit(cache=True)
+def _refractory_keep(pix, t, is_noise, prev_last, refractory_ns, keep, last_t_flat):
+    n = len(pix)
+    next_signal = np.empty(n, np.int64)
+    upcoming = np.iinfo(np.int64).max
+    for i in range(n - 1, -1, -1):  # the next signal event of the same pixel
+        if i == n - 1 or pix[i + 1] != pix[i]:
+            upcoming = np.iinfo(np.int64).max
+        next_signal[i] = upcoming
+        if not is_noise[i]:
+            upcoming = t[i]
+    prev = 0
+    for i in range(n):
+        if i == 0 or pix[i - 1] != pix[i]:
+            prev = prev_last[pix[i]]
+        if is_noise[i]:
+            ok = (t[i] - prev >= refractory_ns) and (next_signal[i] - t[i] >= refractory_ns)
+            keep[i] = ok
+            if ok:
+                prev = t[i]
+                if t[i] > last_t_flat[pix[i]]:
+                    last_t_flat[pix[i]] = t[i]
+        else:
+            keep[i] = True
+            prev = t[i]
+
+
+def refractory_noise(signal: tuple[np.ndarray, ...], noise: tuple[np.ndarray, ...],
+                     prev_last: np.ndarray, last_t: np.ndarray, refractory_ns: int
+                     ) -> np.ndarray:
+    """Which noise events (bool[N]) a refractory pixel lets through.
+
+    A noise event is dropped when it comes less than ``refractory_ns`` after the pixel's
+    previous event (signal, kept noise, or ``prev_last``: the last before this step) or
+    before its next signal event in this step; the step's signal events are kept (an
+    approximation: a real pixel would instead hold back the signal event after a noise
+    event). Kept noise events advance ``last_t`` (int64[H, W], updated in place), so the
+    next step's signal respects them.
+    """
+    sx, sy, st = signal[:3]
+    nx, ny, nt = noise[:3]
+    w = prev_last.shape[1]
+    pix = np.concatenate([sy.astype(np.int64) * w + sx, ny.astype(np.int64) * w + nx])
+    t = np.concatenate([st, nt]).astype(np.int64)
+    is_noise = np.concatenate([np.zeros(len(st), np.bool_), np.ones(len(nt), np.bool_)])
+    order = np.lexsort((~is_noise, t, pix))  # a tie: the signal event first
+    keep = np.empty(len(order), np.bool_)
+    _refractory_keep(pix[order], t[order], is_noise[order], prev_last.ravel(),
+                     np.int64(refractory_ns), keep, last_t.reshape(-1))
+    out = np.empty(len(order), np.bool_)
+    out[order] = keep
+    return out[len(st):]

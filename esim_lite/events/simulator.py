@@ -13,7 +13,7 @@ from esim_lite.events.bandwidth import BandwidthConfig, PhotoreceptorLowPass
 from esim_lite.events.flicker import FlickerConfig
 from esim_lite.events.kernel import NEVER, TIE_TOL, esim_step_sorted
 from esim_lite.events.latency import LatencyConfig, ReadoutDelay
-from esim_lite.events.noise import NoiseConfig, NoiseModel
+from esim_lite.events.noise import NoiseConfig, NoiseModel, refractory_noise
 from esim_lite.events.reference import numpy_step, python_step
 from esim_lite.events.thresholds import ContrastThresholds, ThresholdConfig
 
@@ -125,6 +125,8 @@ class EventSimulator:
             if bandwidth is not None and bandwidth.enabled else None
         self.log_prev = self._effective_log(first_log, self.t_ns)
         self.ref = self.log_prev.astype(np.float64)
+        if noise is not None and noise.leak_phase is not None:  # part-way to a leak event
+            self.ref -= noise.leak_phase * self._c_pos
         self.last_t = np.full(self.hw, NEVER, np.int64)
         self.readout = ReadoutDelay(latency, self.hw, latency_rng) \
             if latency is not None and latency.enabled else None
@@ -160,11 +162,17 @@ class EventSimulator:
             cur = self.lowpass.step(cur, (t_ns - self.t_ns) * 1e-9)
         if self.noise is not None:
             cur = self._effective_log(cur, t_ns)
+        prev_last = self.last_t.copy() if self.noise is not None and self.refractory_ns \
+            else None
         x, y, t, p = self._kernel(self.log_prev, cur, self.ref, self.last_t, self._c_pos,
                                   self._c_neg, self.t_ns, t_ns, self.refractory_ns, TIE_TOL)
         in_order = self._kernel_in_order
         if self.noise is not None:
             nx, ny, nt, np_ = self.noise.events(self.t_ns, t_ns, light)
+            if len(nt) and prev_last is not None:
+                keep = refractory_noise((x, y, t), (nx, ny, nt), prev_last, self.last_t,
+                                        self.refractory_ns)
+                nx, ny, nt, np_ = nx[keep], ny[keep], nt[keep], np_[keep]
             if len(nt):
                 x, y = np.concatenate([x, nx]), np.concatenate([y, ny])
                 t, p = np.concatenate([t, nt]), np.concatenate([p, np_])

@@ -201,3 +201,43 @@ def test_a_frame_count_is_never_exceeded_by_one_long_step(mode):
     assert len(schedule.due(batch, int(5e8))) == 2  # with the one at t = 0: 3
     assert schedule.n_frames == 3 and schedule.done()
     assert schedule.due(batch, int(1e9)) == []
+
+
+def test_leak_fires_at_its_rate_from_the_start():
+    """A sensor has been leaking before the recording starts: in the first 0.25 s at 2 Hz,
+    each pixel fires with probability 0.5 (a start at the reference would give none)."""
+    _, evs = static_simulator(NoiseConfig(leak_rate_hz=2.0, leak_rate_jitter=0.0),
+                              seconds=0.25, steps=25)
+    n = sum(len(e) for e in evs)
+    assert abs(n - 0.5 * 2000) < 5 * np.sqrt(2000 * 0.25)
+
+
+def test_noise_events_obey_the_refractory_period():
+    """Shot and hot-pixel events, like signal events, never come closer than the
+    refractory period to a pixel's previous event, within a step and across steps."""
+    hw, refractory = (20, 30), 2_000_000
+    th = ContrastThresholds.uniform(0.2, 0.2, hw)
+    cfg = NoiseConfig(shot_rate_hz=200.0, hot_pixel_fraction=0.05, hot_pixel_rate_hz=2000.0)
+    model = NoiseModel(cfg, hw, np.random.default_rng(3))
+    rng = np.random.default_rng(4)
+    img = np.full(hw, 0.5, np.float32)
+    sim = EventSimulator(img, 0, th, noise=model, refractory_ns=refractory)
+    evs = []
+    for k in range(1, 101):  # a flickering texture: signal and noise together
+        img = (0.3 + 0.4 * rng.random(hw)).astype(np.float32)
+        evs.append(sim.step(img, k * 1_000_000))
+    ev = Events.concatenate(evs, hw)
+    pix = ev.y.astype(np.int64) * hw[1] + ev.x
+    order = np.lexsort((ev.t_ns, pix))
+    same = pix[order][1:] == pix[order][:-1]
+    gaps = np.diff(ev.t_ns[order])[same]
+    assert len(gaps) > 1000 and gaps.min() >= refractory
+    # without the refractory period the same noise crowds far closer
+    model2 = NoiseModel(cfg, hw, np.random.default_rng(3))
+    sim2 = EventSimulator(np.full(hw, 0.5, np.float32), 0, th, noise=model2)
+    ev2 = Events.concatenate([sim2.step(np.full(hw, 0.5, np.float32), k * 1_000_000)
+                              for k in range(1, 101)], hw)
+    pix2 = ev2.y.astype(np.int64) * hw[1] + ev2.x
+    order2 = np.lexsort((ev2.t_ns, pix2))
+    gaps2 = np.diff(ev2.t_ns[order2])[pix2[order2][1:] == pix2[order2][:-1]]
+    assert (gaps2 < refractory).mean() > 0.3
