@@ -82,7 +82,10 @@ def build_parser() -> argparse.ArgumentParser:
     gen = sub.add_parser("generate", help="simulate sequences into HDF5 shards")
     gen.add_argument("--n-seq", type=int, required=True, help="number of sequences")
     gen.add_argument("--out", required=True, help="output folder for shard_XXXXX.h5 files")
-    gen.add_argument("--config", help="YAML config (default: built-in, see configs/)")
+    gen.add_argument("--config", action="append",
+                     help="YAML config (default: built-in, see configs/); several are layered "
+                          "in order, later files overriding earlier ones key by key, e.g. a "
+                          "sensor preset after a dataset config")
     gen.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                      help="override a config value, e.g. simulation.render.backend=homography")
     gen.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
@@ -118,7 +121,44 @@ def build_parser() -> argparse.ArgumentParser:
     exp.add_argument("--format", required=True, choices=["event_utils", "evreal", "txt"])
     exp.add_argument("--out", required=True, help="output folder")
     exp.add_argument("--sequence", help="only this sequence (e.g. seq_000003)")
+
+    cal = sub.add_parser("calibrate", help="a sensor preset (partial config) measured from a "
+                         "recording: thresholds (with APS frames), background activity, hot "
+                         "pixels, refractory period, flicker")
+    cal.add_argument("recording", help="any recording reconstruct reads: .aedat4, .raw, "
+                     ".h5 (shard or event_utils), events.txt or its folder, EVREAL folder")
+    cal.add_argument("--out", required=True, help="the preset YAML to write")
+    cal.add_argument("--sensor-size", help="WxH, when the file does not say (e.g. 240x180)")
+    cal.add_argument("--sequence", help="a shard's sequence (default: the first)")
     return parser
+
+
+def _sensor_size(text: str | None) -> tuple[int, int] | None:
+    """(H, W) from ``WxH``."""
+    if not text:
+        return None
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--sensor-size must look like 240x180 (width x height), got "
+                         f"{text!r}") from None
+    return h, w
+
+
+def _calibrate(args: argparse.Namespace) -> int:
+    from datagen.calibrate import calibrate_recording, preset_yaml, summary_table
+    from esim_lite.core.atomic import write_text
+
+    cal = calibrate_recording(args.recording, _sensor_size(args.sensor_size), args.sequence)
+    command = "datagen calibrate " + " ".join(
+        [args.recording, *(["--sensor-size", args.sensor_size] if args.sensor_size else []),
+         *(["--sequence", args.sequence] if args.sequence else []), "--out", args.out])
+    write_text(args.out, preset_yaml(cal, command))
+    print(summary_table(cal))
+    for note in cal.notes:
+        print(f"not measured: {note}")
+    print(f"preset written to {Path(args.out).resolve()}")
+    return 0
 
 
 def _flag_values(args: argparse.Namespace) -> dict[str, object]:
@@ -163,6 +203,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "generate":
             return _generate(args)
+        if args.command == "calibrate":
+            return _calibrate(args)
         paths = find_shards(args.target)
         if args.command == "inspect":
             from datagen.summary import describe_shard

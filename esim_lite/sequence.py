@@ -11,6 +11,7 @@ import numpy as np
 from esim_lite.config import FrameConfig, SimulationConfig
 from esim_lite.core.events import Events
 from esim_lite.core.frames import Frames
+from esim_lite.core.streams import derived_rng
 from esim_lite.events.flicker import Flicker
 from esim_lite.events.latency import readout_rng
 from esim_lite.events.noise import NoiseModel
@@ -25,6 +26,9 @@ from esim_lite.geometry.trajectory import BSplineTrajectory
 from esim_lite.geometry.visibility import SurfaceTruth, surface_truth
 from esim_lite.render.antialias import texels_per_sample
 from esim_lite.render.renderer import RenderConfig, Renderer, make_renderer, supersample_for
+
+#: Spawn key of the pixels' random starting points (``events.random_start``).
+START_STREAM_KEY = 0x57A7
 
 
 @dataclass(frozen=True, eq=False)
@@ -212,10 +216,12 @@ def _run(renderer: Renderer, stage: _Stage, thresholds: ContrastThresholds,
     pose, twist = state[0], state[1]
     image = light(renderer.render("lr", pose, state[2]), 0)
     latency_rng = readout_rng(rng) if ev_cfg.latency.enabled else None
+    start = derived_rng(rng, START_STREAM_KEY, "random_start").random(rig.event.hw) \
+        if ev_cfg.random_start else None
     sim = EventSimulator(image, t, thresholds, log_eps=ev_cfg.log_eps,
                          refractory_ns=ev_cfg.refractory_ns, noise=noise,
                          bandwidth=ev_cfg.bandwidth, latency=ev_cfg.latency,
-                         latency_rng=latency_rng)
+                         latency_rng=latency_rng, start_phase=start)
     sampler = AdaptiveSampler(config.sampling, rig.event, thresholds.min_threshold)
     schedule = FrameSchedule(config.frames, config.duration_s)
     log_img = log_intensity(image, ev_cfg.log_eps)

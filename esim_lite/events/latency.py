@@ -25,6 +25,7 @@ import numba
 import numpy as np
 
 from esim_lite.core.events import Events
+from esim_lite.core.streams import derived_rng
 
 #: the ``spawn_key`` entry of the delay's random stream below a sequence's noise stream
 #: (far above any child index ``SeedSequence.spawn`` would hand out).
@@ -65,12 +66,7 @@ def readout_rng(rng: np.random.Generator) -> np.random.Generator:
     Raises:
         ValueError: ``rng`` was not seeded through a ``SeedSequence``.
     """
-    seq = rng.bit_generator.seed_seq
-    if not isinstance(seq, np.random.SeedSequence):
-        raise ValueError("latency needs a generator seeded through a SeedSequence "
-                         "(np.random.default_rng(seed))")
-    return np.random.default_rng(np.random.SeedSequence(
-        seq.entropy, spawn_key=(*seq.spawn_key, LATENCY_STREAM_KEY), pool_size=seq.pool_size))
+    return derived_rng(rng, LATENCY_STREAM_KEY, "latency")
 
 
 class ReadoutDelay:

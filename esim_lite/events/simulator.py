@@ -34,6 +34,10 @@ class EventConfig:
             sensor, but set with the sensor's realism).
         latency: the readout's constant delay and per-event jitter of the timestamps (off by
             default; see :mod:`esim_lite.events.latency`).
+        random_start: start every pixel at a random point between its two levels (its log
+            intensity uniformly between ``C-`` below and ``C+`` above its reference), as
+            the pixels of a running sensor stand when a recording starts; off: every pixel
+            starts at its reference (ESIM, the paper).
     """
 
     log_eps: float = 1e-3
@@ -43,6 +47,7 @@ class EventConfig:
     bandwidth: BandwidthConfig = field(default_factory=BandwidthConfig)
     flicker: FlickerConfig = field(default_factory=FlickerConfig)
     latency: LatencyConfig = field(default_factory=LatencyConfig)
+    random_start: bool = False
 
     def __post_init__(self) -> None:
         if self.log_eps <= 0:
@@ -94,6 +99,10 @@ class EventSimulator:
         latency: the readout delay of the timestamps (None or disabled: none, events keep
             their comparator times); :meth:`finish` ends the recording.
         latency_rng: draws the jitter (needed when ``latency.jitter_us > 0``).
+        start_phase: float[H, W] in [0, 1): where each pixel starts between its levels (0:
+            at ``C+`` above its reference, 1: ``C-`` below; see ``EventConfig.random_start``);
+            None: at its reference (with leak: a random share of the way to its next leak
+            event).
         kernel: ``numba`` (fast), the ``numpy``/``python`` reference implementations, or
             ``torch`` (:mod:`esim_lite.events.torch_kernel`, on CUDA when torch sees a GPU, else on
             the CPU; imported only when asked for).
@@ -104,7 +113,8 @@ class EventSimulator:
                  noise: NoiseModel | None = None, kernel: KernelName = "numba",
                  bandwidth: BandwidthConfig | None = None,
                  latency: LatencyConfig | None = None,
-                 latency_rng: np.random.Generator | None = None) -> None:
+                 latency_rng: np.random.Generator | None = None,
+                 start_phase: np.ndarray | None = None) -> None:
         self.hw = tuple(first_intensity.shape)
         if thresholds.pos_map.shape != self.hw:
             raise ValueError(f"threshold maps {thresholds.pos_map.shape} do not match the "
@@ -125,7 +135,9 @@ class EventSimulator:
             if bandwidth is not None and bandwidth.enabled else None
         self.log_prev = self._effective_log(first_log, self.t_ns)
         self.ref = self.log_prev.astype(np.float64)
-        if noise is not None and noise.leak_phase is not None:  # part-way to a leak event
+        if start_phase is not None:  # L - ref uniform in (-C-, C+]
+            self.ref += start_phase * (self._c_pos + self._c_neg) - self._c_pos
+        elif noise is not None and noise.leak_phase is not None:  # part-way to a leak event
             self.ref -= noise.leak_phase * self._c_pos
         self.last_t = np.full(self.hw, NEVER, np.int64)
         self.readout = ReadoutDelay(latency, self.hw, latency_rng) \

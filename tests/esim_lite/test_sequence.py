@@ -241,3 +241,24 @@ def test_noise_events_obey_the_refractory_period():
     order2 = np.lexsort((ev2.t_ns, pix2))
     gaps2 = np.diff(ev2.t_ns[order2])[pix2[order2][1:] == pix2[order2][:-1]]
     assert (gaps2 < refractory).mean() > 0.3
+
+
+def test_random_start_spreads_pixels_between_their_levels():
+    """With a random start a pixel's log intensity stands uniformly between C- below and
+    C+ above its reference, so a rise of dL <= C+ + C- fires at a share dL / (C+ + C-) of
+    the pixels."""
+    hw, c_pos, c_neg = (60, 80), 0.2, 0.3
+    th = ContrastThresholds.uniform(c_pos, c_neg, hw)
+    phase = np.random.default_rng(0).random(hw)
+    img0 = np.full(hw, 0.4, np.float32)
+    for rise in (0.1, 0.25, 0.4):
+        sim = EventSimulator(img0, 0, th, start_phase=phase)
+        ev = sim.step_log(np.log(1e-3 + img0) + np.float32(rise), 1_000_000)
+        fired = np.zeros(hw, bool)
+        fired[ev.y, ev.x] = True
+        assert np.all(ev.p == 1)
+        expected = rise / (c_pos + c_neg)
+        assert abs(fired.mean() - expected) < 5 * np.sqrt(expected * (1 - expected) / fired.size)
+    # without it every pixel sits at its reference: nothing below C+
+    sim = EventSimulator(img0, 0, th)
+    assert len(sim.step_log(np.log(1e-3 + img0) + np.float32(0.15), 1_000_000)) == 0

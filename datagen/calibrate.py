@@ -1,0 +1,253 @@
+"""``datagen calibrate``: a sensor preset measured from a real (or simulated) recording.
+
+Reads any recording :func:`model.data.recording.open_recording` reads, runs the estimators
+of :mod:`datagen.sensor_stats` and writes a partial datagen config (``simulation.events``
+keys only, the existing ones) that ``datagen generate --config BASE --config PRESET``
+loads on top of a dataset config. Ranges are centred on each estimate; comments give the
+measured value, its uncertainty and how it was measured. What the recording cannot tell
+(thresholds without frames, flicker in a recording without a line) is left to the base
+config, and the preset says so.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from datagen.sensor_stats import (
+    HOT_RATIO,
+    BackgroundActivity,
+    Estimate,
+    EventStats,
+    Flicker,
+    HotPixels,
+    Thresholds,
+    background_activity,
+    event_stats,
+    flicker,
+    hot_pixels,
+    refractory_period,
+    thresholds,
+)
+from esim_lite.core.events import Events
+from esim_lite.core.frames import Frames
+
+#: The shortest recording calibrated: events, and seconds.
+MIN_EVENTS = 1000
+MIN_DURATION_S = 0.005
+#: Frame intervals needed for thresholds.
+MIN_FRAME_INTERVALS = 4
+#: A flicker line also needs this share of pixels locked to it.
+MIN_FLICKER_AREA = 1e-3
+#: Thresholds assumed for flicker depth when the recording has no frames to measure them:
+#: the middle of the E2VID/E2SRI training range (Rebecq et al., 2019).
+DEFAULT_THRESHOLD = 0.18
+#: Half-width of a threshold range around its estimate: this share of it, or two standard
+#: uncertainties when larger.
+RANGE_HALF_WIDTH = 0.15
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """What one recording says about its sensor.
+
+    Attributes:
+        source: the recording's path (and sequence); kind: its format; sensor_hw: (H, W).
+        stats: rates, ON share, inter-event intervals; hot: hot pixels; background:
+            background activity away from them; refractory: seconds (an upper bound unless
+            bursts reach it); flicker: the 100/120 Hz line.
+        thresholds: from frames, or None (``notes`` says why).
+        notes: what could not be measured and why.
+    """
+
+    source: str
+    kind: str
+    sensor_hw: tuple[int, int]
+    stats: EventStats
+    hot: HotPixels
+    background: BackgroundActivity
+    refractory: Estimate
+    flicker: Flicker
+    thresholds: Thresholds | None
+    notes: tuple[str, ...] = field(default=())
+
+    @property
+    def flicker_found(self) -> bool:
+        return self.flicker.detected and self.flicker.area_fraction >= MIN_FLICKER_AREA
+
+
+def calibrate_events(events: Events, frames: Frames | None, source: str = "<events>",
+                     kind: str = "events") -> Calibration:
+    """Measure a sensor from its ``events`` (and ``frames``, for the thresholds).
+
+    Raises:
+        ValueError: naming ``source``: fewer than ``MIN_EVENTS`` events or shorter than
+            ``MIN_DURATION_S``.
+    """
+    if len(events) < MIN_EVENTS:
+        raise ValueError(f"{source}: {len(events)} events; calibration needs at least "
+                         f"{MIN_EVENTS}")
+    span = (int(events.t_ns[-1]) - int(events.t_ns[0])) * 1e-9
+    if span < MIN_DURATION_S:
+        raise ValueError(f"{source}: the events span {span * 1e3:.2f} ms; calibration needs "
+                         f"at least {MIN_DURATION_S * 1e3:.0f} ms")
+    notes = []
+    stats = event_stats(events)
+    hot = hot_pixels(events)
+    background = background_activity(events, hot.mask)
+    if not math.isfinite(background.rate_hz.value):
+        notes.append("background activity: no quiet space-time found (the scene fires "
+                     "everywhere); kept from the base config")
+    refractory = refractory_period(events, hot.mask)
+    if not math.isfinite(refractory.value):
+        notes.append("refractory period: fewer than 100 same-pixel intervals; kept from the "
+                     "base config")
+    lamp = flicker(events, hot.mask)
+    measured = None
+    if frames is None or len(frames) < 2:
+        notes.append("thresholds need APS frames, and the recording has none: kept from "
+                     "the base config")
+    elif len(frames) - 1 < MIN_FRAME_INTERVALS:
+        notes.append(f"thresholds: {len(frames) - 1} frame interval(s), fewer than "
+                     f"{MIN_FRAME_INTERVALS}; kept from the base config")
+    else:
+        try:
+            measured = thresholds(events, frames, exclude=hot.mask, background=background)
+        except ValueError as exc:
+            notes.append(f"thresholds: {exc}; kept from the base config")
+    if measured is not None and not (measured.pos.value > 0 and measured.neg.value > 0):
+        notes.append(f"thresholds: the fit gave C+ {measured.pos.value:.3g}, C- "
+                     f"{measured.neg.value:.3g}, not both positive; kept from the base config")
+        measured = None
+    return Calibration(source, kind, events.sensor_hw, stats, hot, background, refractory,
+                       lamp, measured, tuple(notes))
+
+
+def calibrate_recording(path: str | Path, sensor_hw: tuple[int, int] | None = None,
+                        sequence: str | None = None) -> Calibration:
+    """Open ``path`` (any format ``reconstruct`` reads) and calibrate it.
+
+    Raises:
+        FileNotFoundError, ValueError: naming the file: missing, unreadable, empty or too
+            short.
+    """
+    from model.data.recording import open_recording  # the readers, only when calibrating
+
+    rec = open_recording(path, sensor_hw, sequence)
+    events = rec.read_all()
+    source = str(path) if sequence is None else f"{path} ({sequence})"
+    frames = rec.frames
+    if frames is not None and frames.hw != events.sensor_hw:
+        frames = None
+    return calibrate_events(events, frames, source, rec.kind)
+
+
+def _rng(est: Estimate) -> list[float]:
+    half = max(RANGE_HALF_WIDTH * est.value, 2 * est.std if math.isfinite(est.std) else 0.0)
+    return [round(max(est.value - half, 0.01), 4), round(est.value + half, 4)]
+
+
+def _g(value: float, digits: int = 3) -> float:
+    """``value`` rounded to ``digits`` significant digits (a plain float for YAML)."""
+    if value == 0 or not math.isfinite(value):
+        return float(value)
+    return float(f"{value:.{digits}g}")
+
+
+def preset_yaml(cal: Calibration, command: str = "") -> str:
+    """The preset: a partial datagen config with a comment on every measured value."""
+    st, bg, hot, thr = cal.stats, cal.background, cal.hot, cal.thresholds
+    h, w = cal.sensor_hw
+    lines = [
+        f"# Sensor preset measured from {cal.source} ({cal.kind}, {w}x{h}).",
+        *([f"# Made by: {command}"] if command else []),
+        "# Loads on top of a dataset config: datagen generate --config BASE.yaml --config "
+        "THIS.yaml ...",
+        f"# The recording: {st.events:,} events in {st.duration_s:.3f} s, "
+        f"{st.rate_hz:.3g} events/pixel/s, ON share {st.on_fraction:.3f}, "
+        f"{st.active_fraction:.1%} of pixels active;",
+        "# intervals between a pixel's events (ms) at percentiles 1/10/50/90/99: "
+        + "/".join(f"{v:.3g}" for v in st.iei_ms) + ".",
+        "# Estimators and their assumptions: datagen/sensor_stats.py; how the presets were "
+        "made: docs/sensors.md.",
+    ]
+    lines += [f"# Not measured: {n}." for n in cal.notes]
+    lines += ["simulation:", "  events:"]
+    if thr is not None:
+        mean_c = (thr.pos.value + thr.neg.value) / 2
+        mismatch = thr.mismatch.value * mean_c if math.isfinite(thr.mismatch.value) else None
+        lines += [
+            "    thresholds:",
+            f"      # C+ {thr.pos}, C- {thr.neg} (bootstrap over {thr.intervals} frame "
+            "intervals): events against log-frame changes",
+            f"      pos_range: {_rng(thr.pos)}",
+            f"      neg_range: {_rng(thr.neg)}",
+        ]
+        if mismatch is not None:
+            lines += [f"      # pixel-to-pixel spread {thr.mismatch} of the mean threshold "
+                      f"({thr.pixels} pixels, odd/even split)",
+                      f"      mismatch_std: {_g(mismatch)}"]
+    if math.isfinite(cal.refractory.value):
+        lines += [f"    # 0.1% quantile of a pixel's inter-event intervals: "
+                  f"{cal.refractory.value * 1e3:.3g} +- {cal.refractory.std * 1e3:.2g} ms "
+                  "(an upper bound when the scene never makes a pixel burst)",
+                  f"    refractory_ns: {int(round(cal.refractory.value * 1e9, -3))}"]
+    noise = []
+    if math.isfinite(bg.rate_hz.value):
+        noise += [f"      # background activity {bg.rate_hz} Hz per pixel, ON share "
+                  f"{bg.on_fraction} ({bg.events} events in quiet {bg.bin_s * 1e3:.3g} ms "
+                  f"cells, {bg.quiet_fraction:.0%} of the pixel-time); leak fires ON only, "
+                  "shot noise either way",
+                  f"      shot_rate_hz: {_g(bg.shot_hz)}",
+                  f"      leak_rate_hz: {_g(bg.leak_hz)}"]
+    noise += [f"      # hot pixels: {int(hot.mask.sum())} of {h * w} fire >= "
+              f"{HOT_RATIO:g}x the busiest neighbour"
+              + (f", median {hot.rate_hz:.3g} Hz, ON share {hot.on_fraction:.2f}"
+                 if hot.mask.any() else ""),
+              f"      hot_pixel_fraction: {_g(hot.fraction)}",
+              f"      hot_pixel_rate_hz: {_g(hot.rate_hz) if hot.mask.any() else 0.0}"]
+    lines += ["    noise:", *noise]
+    lamp = cal.flicker
+    lines += ["    flicker:"]
+    if cal.flicker_found:
+        c_pos = thr.pos.value if thr is not None else DEFAULT_THRESHOLD
+        c_neg = thr.neg.value if thr is not None else DEFAULT_THRESHOLD
+        depth = min(lamp.depth(c_pos, c_neg), 0.95)
+        lines += [f"      # a {lamp.frequency_hz:.0f} Hz line {lamp.line_ratio:.3g}x the "
+                  f"spectrum nearby; {lamp.area_fraction:.2%} of pixels lock to it at "
+                  f"{lamp.events_per_cycle:.3g} events per cycle"
+                  + ("" if thr is not None else
+                     f" (depth from thresholds {DEFAULT_THRESHOLD}, the recording has none)"),
+                  f"      frequency_hz: {lamp.frequency_hz:.1f}",
+                  f"      depth: {_g(depth)}",
+                  f"      area_fraction: {_g(max(lamp.area_fraction, 1e-3))}"]
+    else:
+        why = (f"a {lamp.frequency_hz:.0f} Hz line {lamp.line_ratio:.3g}x the spectrum "
+               f"nearby, on {lamp.area_fraction:.2%} of pixels"
+               if math.isfinite(lamp.line_ratio) else "recording too short for a spectrum")
+        lines += [f"      # no flicker: {why}", "      frequency_hz: 0.0"]
+    return "\n".join(lines) + "\n"
+
+
+def summary_table(cal: Calibration) -> str:
+    """A text table of the measured values, for the terminal."""
+    st, bg, thr = cal.stats, cal.background, cal.thresholds
+    rows = [("events", f"{st.events:,} in {st.duration_s:.3f} s"),
+            ("events / pixel / s", f"{st.rate_hz:.4g}"),
+            ("ON share", f"{st.on_fraction:.3f}"),
+            ("inter-event interval p1/p10/p50 (ms)",
+             "/".join(f"{v:.3g}" for v in st.iei_ms[:3])),
+            ("background activity (Hz / pixel)", str(bg.rate_hz)),
+            ("background ON share", str(bg.on_fraction)),
+            ("hot pixels", f"{int(cal.hot.mask.sum())} ({cal.hot.fraction:.2e})"),
+            ("refractory (ms, upper bound)",
+             f"{cal.refractory.value * 1e3:.3g} +- {cal.refractory.std * 1e3:.2g}"),
+            ("flicker", f"{cal.flicker.frequency_hz:.0f} Hz x{cal.flicker.line_ratio:.3g}, "
+                        f"{cal.flicker.area_fraction:.2%} of pixels"
+             if math.isfinite(cal.flicker.line_ratio) else "n/a"),
+            ("C+", str(thr.pos) if thr else "needs frames"),
+            ("C-", str(thr.neg) if thr else "needs frames"),
+            ("threshold spread (relative)", str(thr.mismatch) if thr else "needs frames")]
+    width = max(len(k) for k, _ in rows)
+    return "\n".join(f"{k:<{width}}  {v}" for k, v in rows)
