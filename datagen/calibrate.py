@@ -12,6 +12,7 @@ config, and the preset says so.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -155,79 +156,131 @@ def _g(value: float, digits: int = 3) -> float:
     return float(f"{value:.{digits}g}")
 
 
-def preset_yaml(cal: Calibration, command: str = "") -> str:
-    """The preset: a partial datagen config with a comment on every measured value."""
-    st, bg, hot, thr = cal.stats, cal.background, cal.hot, cal.thresholds
-    h, w = cal.sensor_hw
-    lines = [
-        f"# Sensor preset measured from {cal.source} ({cal.kind}, {w}x{h}).",
-        *([f"# Made by: {command}"] if command else []),
-        "# Loads on top of a dataset config: datagen generate --config BASE.yaml --config "
-        "THIS.yaml ...",
-        f"# The recording: {st.events:,} events in {st.duration_s:.3f} s, "
-        f"{st.rate_hz:.3g} events/pixel/s, ON share {st.on_fraction:.3f}, "
-        f"{st.active_fraction:.1%} of pixels active;",
-        "# intervals between a pixel's events (ms) at percentiles 1/10/50/90/99: "
-        + "/".join(f"{v:.3g}" for v in st.iei_ms) + ".",
-        "# Estimators and their assumptions: datagen/sensor_stats.py; how the presets were "
-        "made: docs/sensors.md.",
-    ]
-    lines += [f"# Not measured: {n}." for n in cal.notes]
-    lines += ["simulation:", "  events:"]
-    if thr is not None:
-        mean_c = (thr.pos.value + thr.neg.value) / 2
-        mismatch = thr.mismatch.value * mean_c if math.isfinite(thr.mismatch.value) else None
-        lines += [
-            "    thresholds:",
-            f"      # C+ {thr.pos}, C- {thr.neg} (bootstrap over {thr.intervals} frame "
-            "intervals): events against log-frame changes",
-            f"      pos_range: {_rng(thr.pos)}",
-            f"      neg_range: {_rng(thr.neg)}",
-        ]
-        if mismatch is not None:
-            lines += [f"      # pixel-to-pixel spread {thr.mismatch} of the mean threshold "
-                      f"({thr.pixels} pixels, odd/even split)",
-                      f"      mismatch_std: {_g(mismatch)}"]
-    if math.isfinite(cal.refractory.value):
-        lines += [f"    # 0.1% quantile of a pixel's inter-event intervals: "
-                  f"{cal.refractory.value * 1e3:.3g} +- {cal.refractory.std * 1e3:.2g} ms "
-                  "(an upper bound when the scene never makes a pixel burst)",
-                  f"    refractory_ns: {int(round(cal.refractory.value * 1e9, -3))}"]
-    noise = []
-    if math.isfinite(bg.rate_hz.value):
-        noise += [f"      # background activity {bg.rate_hz} Hz per pixel, ON share "
-                  f"{bg.on_fraction} ({bg.events} events in quiet {bg.bin_s * 1e3:.3g} ms "
-                  f"cells, {bg.quiet_fraction:.0%} of the pixel-time); leak fires ON only, "
-                  "shot noise either way",
+def _name(cal: Calibration) -> str:
+    return Path(cal.source.split(" (")[0]).name or cal.source
+
+
+def _pick(cals: Sequence[Calibration], value) -> Calibration | None:
+    """The calibration with the smallest finite ``value(cal)`` (each one an upper bound)."""
+    finite = [c for c in cals if math.isfinite(value(c))]
+    return min(finite, key=value) if finite else None
+
+
+def preset_yaml(cals: Calibration | Sequence[Calibration], command: str = "") -> str:
+    """The preset: a partial datagen config with a comment on every measured value.
+
+    From several recordings of one sensor, each value comes from where it is measured
+    best, and the comment names that recording: thresholds are the inverse-variance mean
+    over the recordings with frames; the refractory period, the background activity and
+    the hot-pixel share are each the smallest over the recordings (each recording only
+    bounds them from above: a slow scene hides the refractory wall, signal leaks into
+    quiet cells, flickering spots look hot); a lamp's flicker is the light, not the sensor,
+    so it is kept only when every recording has it.
+    """
+    cals = [cals] if isinstance(cals, Calibration) else list(cals)
+    if not cals:
+        raise ValueError("a preset needs at least one calibrated recording")
+    hws = {c.sensor_hw for c in cals}
+    if len(hws) > 1:
+        raise ValueError(f"the recordings come from sensors of different sizes: "
+                         f"{sorted(hws)}; calibrate one sensor at a time")
+    h, w = cals[0].sensor_hw
+    lines = [f"# Sensor preset measured from {len(cals)} recording(s) of one {w}x{h} sensor.",
+             *([f"# Made by: {command}"] if command else []),
+             "# Loads on top of a dataset config: datagen generate --config BASE.yaml "
+             "--config THIS.yaml ...",
+             "# Estimators and their assumptions: datagen/sensor_stats.py; how the presets "
+             "were made: docs/sensors.md."]
+    for cal in cals:
+        st = cal.stats
+        lines += [f"# {_name(cal)} ({cal.kind}): {st.events:,} events in "
+                  f"{st.duration_s:.3f} s, {st.rate_hz:.3g} events/pixel/s, ON share "
+                  f"{st.on_fraction:.3f}, {st.active_fraction:.1%} of pixels active; "
+                  "inter-event intervals p1/p10/p50/p90/p99 (ms) "
+                  + "/".join(f"{v:.3g}" for v in st.iei_ms)]
+        lines += [f"#   not measured: {n}." for n in cal.notes]
+    lines += ["simulation:", "  events:",
+              "    random_start: true   # a running sensor's pixels stand anywhere between "
+              "their levels"]
+    with_thr = [c for c in cals if c.thresholds is not None]
+    if with_thr:
+        lines += ["    thresholds:"] + _threshold_lines(with_thr)
+    else:
+        lines += ["    # thresholds: none of the recordings has frames; the base config's stay"]
+    ref = _pick(cals, lambda c: c.refractory.value)
+    if ref is not None:
+        r = ref.refractory
+        lines += [f"    # {r.value * 1e3:.3g} +- {r.std * 1e3:.2g} ms, the 0.1% quantile of "
+                  f"a pixel's inter-event intervals in {_name(ref)} (the smallest over the "
+                  "recordings; an upper bound when no scene makes a pixel burst)",
+                  f"    refractory_ns: {int(round(r.value * 1e9, -3))}"]
+    lines += ["    noise:"]
+    quiet = _pick(cals, lambda c: c.background.rate_hz.value)
+    if quiet is not None:
+        bg = quiet.background
+        lines += [f"      # background activity {bg.rate_hz} Hz per pixel, ON share "
+                  f"{bg.on_fraction}, in {_name(quiet)} ({bg.events} events in quiet "
+                  f"{bg.bin_s * 1e3:.3g} ms cells, {bg.quiet_fraction:.0%} of the "
+                  "pixel-time); leak fires ON only, shot noise either way",
                   f"      shot_rate_hz: {_g(bg.shot_hz)}",
                   f"      leak_rate_hz: {_g(bg.leak_hz)}"]
-    noise += [f"      # hot pixels: {int(hot.mask.sum())} of {h * w} fire >= "
-              f"{HOT_RATIO:g}x the busiest neighbour"
-              + (f", median {hot.rate_hz:.3g} Hz, ON share {hot.on_fraction:.2f}"
-                 if hot.mask.any() else ""),
+    hot_cal = min(cals, key=lambda c: c.hot.fraction)
+    hot = hot_cal.hot
+    lines += [f"      # hot pixels (>= {HOT_RATIO:g}x the busiest neighbour): "
+              + ", ".join(f"{int(c.hot.mask.sum())} in {_name(c)}" for c in cals)
+              + (f"; median {hot.rate_hz:.3g} Hz" if hot.mask.any() else ""),
               f"      hot_pixel_fraction: {_g(hot.fraction)}",
               f"      hot_pixel_rate_hz: {_g(hot.rate_hz) if hot.mask.any() else 0.0}"]
-    lines += ["    noise:", *noise]
-    lamp = cal.flicker
-    lines += ["    flicker:"]
-    if cal.flicker_found:
-        c_pos = thr.pos.value if thr is not None else DEFAULT_THRESHOLD
-        c_neg = thr.neg.value if thr is not None else DEFAULT_THRESHOLD
-        depth = min(lamp.depth(c_pos, c_neg), 0.95)
-        lines += [f"      # a {lamp.frequency_hz:.0f} Hz line {lamp.line_ratio:.3g}x the "
-                  f"spectrum nearby; {lamp.area_fraction:.2%} of pixels lock to it at "
-                  f"{lamp.events_per_cycle:.3g} events per cycle"
-                  + ("" if thr is not None else
-                     f" (depth from thresholds {DEFAULT_THRESHOLD}, the recording has none)"),
-                  f"      frequency_hz: {lamp.frequency_hz:.1f}",
-                  f"      depth: {_g(depth)}",
-                  f"      area_fraction: {_g(max(lamp.area_fraction, 1e-3))}"]
-    else:
-        why = (f"a {lamp.frequency_hz:.0f} Hz line {lamp.line_ratio:.3g}x the spectrum "
-               f"nearby, on {lamp.area_fraction:.2%} of pixels"
-               if math.isfinite(lamp.line_ratio) else "recording too short for a spectrum")
-        lines += [f"      # no flicker: {why}", "      frequency_hz: 0.0"]
+    lines += ["    flicker:"] + _flicker_lines(cals, with_thr)
     return "\n".join(lines) + "\n"
+
+
+def _threshold_lines(cals: Sequence[Calibration]) -> list[str]:
+    def mean(get) -> Estimate:
+        est = [get(c.thresholds) for c in cals]
+        ok = [e for e in est if math.isfinite(e.value)]
+        if not ok:
+            return Estimate(math.nan, math.nan)
+        weights = [1 / max(e.std, 1e-6) ** 2 if math.isfinite(e.std) else 1.0 for e in ok]
+        value = sum(wt * e.value for wt, e in zip(weights, ok)) / sum(weights)
+        return Estimate(value, 1 / math.sqrt(sum(weights)) if len(ok) > 1 else ok[0].std)
+
+    pos, neg = mean(lambda t: t.pos), mean(lambda t: t.neg)
+    spread = mean(lambda t: t.mismatch)
+    where = ", ".join(f"{_name(c)} ({c.thresholds.intervals} frame intervals)" for c in cals)
+    lines = [f"      # C+ {pos}, C- {neg} from {where}: an ideal pixel replayed on the log "
+             "frames fires as many ON and OFF events as the sensor (uncertainty: bootstrap "
+             "over pixels)",
+             f"      pos_range: {_rng(pos)}",
+             f"      neg_range: {_rng(neg)}"]
+    if math.isfinite(spread.value):
+        mismatch = spread.value * (pos.value + neg.value) / 2
+        lines += [f"      # pixel-to-pixel spread {spread} of the mean threshold (per-pixel "
+                  "gains of the first and second half of the frames)",
+                  f"      mismatch_std: {_g(mismatch)}"]
+    return lines
+
+
+def _flicker_lines(cals: Sequence[Calibration], with_thr: Sequence[Calibration]
+                   ) -> list[str]:
+    seen = "; ".join(
+        f"{_name(c)}: " + (f"{c.flicker.frequency_hz:.0f} Hz line {c.flicker.line_ratio:.3g}x "
+                           f"the spectrum nearby, {c.flicker.area_fraction:.2%} of pixels "
+                           f"locked" if math.isfinite(c.flicker.line_ratio) else "too short")
+        for c in cals)
+    if not all(c.flicker_found for c in cals):
+        return [f"      # no flicker kept ({seen}): a lamp is the light, not the sensor",
+                "      frequency_hz: 0.0"]
+    lamp = max(cals, key=lambda c: c.flicker.area_fraction).flicker
+    c_pos = with_thr[0].thresholds.pos.value if with_thr else DEFAULT_THRESHOLD
+    c_neg = with_thr[0].thresholds.neg.value if with_thr else DEFAULT_THRESHOLD
+    depth = min(lamp.depth(c_pos, c_neg), 0.95)
+    return [f"      # {seen}; {lamp.events_per_cycle:.3g} events per cycle at the locked "
+            "pixels"
+            + ("" if with_thr else f" (depth for thresholds {DEFAULT_THRESHOLD}: no frames)"),
+            f"      frequency_hz: {lamp.frequency_hz:.1f}",
+            f"      depth: {_g(depth)}",
+            f"      area_fraction: {_g(max(lamp.area_fraction, 1e-3))}"]
 
 
 def summary_table(cal: Calibration) -> str:

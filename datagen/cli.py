@@ -125,8 +125,9 @@ def build_parser() -> argparse.ArgumentParser:
     cal = sub.add_parser("calibrate", help="a sensor preset (partial config) measured from a "
                          "recording: thresholds (with APS frames), background activity, hot "
                          "pixels, refractory period, flicker")
-    cal.add_argument("recording", help="any recording reconstruct reads: .aedat4, .raw, "
-                     ".h5 (shard or event_utils), events.txt or its folder, EVREAL folder")
+    cal.add_argument("recording", nargs="+", help="one or more recordings of one sensor, "
+                     "any format reconstruct reads: .aedat4, .raw, .h5 (shard or "
+                     "event_utils), events.txt or its folder, EVREAL folder")
     cal.add_argument("--out", required=True, help="the preset YAML to write")
     cal.add_argument("--sensor-size", help="WxH, when the file does not say (e.g. 240x180)")
     cal.add_argument("--sequence", help="a shard's sequence (default: the first)")
@@ -149,14 +150,18 @@ def _calibrate(args: argparse.Namespace) -> int:
     from datagen.calibrate import calibrate_recording, preset_yaml, summary_table
     from esim_lite.core.atomic import write_text
 
-    cal = calibrate_recording(args.recording, _sensor_size(args.sensor_size), args.sequence)
+    cals = [calibrate_recording(r, _sensor_size(args.sensor_size), args.sequence)
+            for r in args.recording]
     command = "datagen calibrate " + " ".join(
-        [args.recording, *(["--sensor-size", args.sensor_size] if args.sensor_size else []),
+        [*args.recording, *(["--sensor-size", args.sensor_size] if args.sensor_size else []),
          *(["--sequence", args.sequence] if args.sequence else []), "--out", args.out])
-    write_text(args.out, preset_yaml(cal, command))
-    print(summary_table(cal))
-    for note in cal.notes:
-        print(f"not measured: {note}")
+    text = preset_yaml(cals, command)
+    write_text(args.out, text)
+    for cal in cals:
+        print(f"== {cal.source}")
+        print(summary_table(cal))
+        for note in cal.notes:
+            print(f"not measured: {note}")
     print(f"preset written to {Path(args.out).resolve()}")
     return 0
 

@@ -169,8 +169,9 @@ def test_without_frames_the_preset_says_thresholds_need_them():
     from datagen.calibrate import preset_yaml
 
     text = preset_yaml(cal)
-    assert "thresholds:" not in text and "need APS frames" in text
-    assert yaml.safe_load(text)["simulation"]["events"]["noise"]["shot_rate_hz"] > 0
+    events = yaml.safe_load(text)["simulation"]["events"]
+    assert "thresholds" not in events and "need APS frames" in text
+    assert events["noise"]["shot_rate_hz"] > 0
 
 
 def test_bad_recordings_fail_with_the_file_named(tmp_path, capsys):
