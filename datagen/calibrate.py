@@ -1,6 +1,6 @@
 """``datagen calibrate``: a sensor preset measured from a real (or simulated) recording.
 
-Reads any recording :func:`model.data.recording.open_recording` reads, runs the estimators
+Reads any recording :func:`datagen.recording.open_recording` reads, runs the estimators
 of :mod:`datagen.sensor_stats` and writes a partial datagen config (``simulation.events``
 keys only, the existing ones) that ``datagen generate --config BASE --config PRESET``
 loads on top of a dataset config. Ranges are centred on each estimate; comments give the
@@ -133,7 +133,7 @@ def calibrate_recording(path: str | Path, sensor_hw: tuple[int, int] | None = No
         FileNotFoundError, ValueError: naming the file: missing, unreadable, empty or too
             short.
     """
-    from model.data.recording import open_recording  # the readers, only when calibrating
+    from datagen.recording import open_recording  # the readers, only when calibrating
 
     rec = open_recording(path, sensor_hw, sequence)
     events = rec.read_all()

@@ -36,6 +36,7 @@ RANGE_LIMITS: dict[str, tuple[float, float]] = {
     "cutoff_hz": (0.0, math.inf),
     "flicker_depth": (0.0, 1.0),  # FlickerConfig.depth < 1, checked below
     "flicker_area": (0.0, 1.0),  # FlickerConfig.area_fraction > 0, checked below
+    "mismatch_relative": (0.0, math.inf),
 }
 #: Rates and the cutoff span decades across real sensors: drawn uniformly in ``log``.
 DEFAULT_LOG_UNIFORM = ("shot_rate_hz", "leak_rate_hz", "hot_pixel_rate_hz", "cutoff_hz")
@@ -55,6 +56,8 @@ class SensorRanges:
 
     Attributes:
         mismatch_std: ``thresholds.mismatch_std`` (per-pixel threshold mismatch, log units).
+        mismatch_relative: ``thresholds.mismatch_relative`` (mismatch as a share of the
+            sequence's thresholds).
         refractory_us: ``refractory_ns`` in microseconds (rounded to the nanosecond).
         shot_rate_hz, shot_bright_factor, leak_rate_hz, hot_pixel_fraction,
             hot_pixel_rate_hz: the ``noise`` settings of the same names.
@@ -72,6 +75,7 @@ class SensorRanges:
     """
 
     mismatch_std: Range | None = None
+    mismatch_relative: Range | None = None
     refractory_us: Range | None = None
     shot_rate_hz: Range | None = None
     shot_bright_factor: Range | None = None
@@ -142,8 +146,8 @@ class SensorRanges:
         u = dict(zip(_SLOTS, rng.random(len(_SLOTS)).tolist()))
         v = {n: x for n in RANGE_LIMITS if (x := self._value(n, u[n])) is not None}
         thresholds = events.thresholds
-        if "mismatch_std" in v:
-            thresholds = dataclasses.replace(thresholds, mismatch_std=v["mismatch_std"])
+        thresholds = dataclasses.replace(
+            thresholds, **{n: v[n] for n in ("mismatch_std", "mismatch_relative") if n in v})
         noise = dataclasses.replace(events.noise,
                                     **{n: v[n] for n in _NOISE_FIELDS if n in v})
         cutoff = v.get("cutoff_hz", events.bandwidth.cutoff_hz)

@@ -84,9 +84,9 @@ GROUND_TRUTH_KINDS = ("flow", "depth", "ids")
 _GROUND_TRUTH_DTYPE = {"flow": np.dtype(np.float32), "depth": np.dtype(np.float32),
                        "ids": np.dtype(np.uint8)}
 #: Sequence attributes recording a drawn sensor (``sensor_ranges``), in storage order.
-SENSOR_ATTRS = ("refractory_ns", "mismatch_std", "shot_rate_hz", "shot_bright_factor",
-                "leak_rate_hz", "hot_pixel_fraction", "hot_pixel_rate_hz", "cutoff_hz",
-                "flicker_hz", "flicker_depth", "flicker_area")
+SENSOR_ATTRS = ("refractory_ns", "mismatch_std", "mismatch_relative", "shot_rate_hz",
+                "shot_bright_factor", "leak_rate_hz", "hot_pixel_fraction", "hot_pixel_rate_hz",
+                "cutoff_hz", "flicker_hz", "flicker_depth", "flicker_area")
 
 
 def frame_dtype(min_threshold: float) -> np.dtype:
@@ -100,6 +100,7 @@ def sensor_attrs(events: EventConfig) -> dict[str, float]:
     noise, flicker = events.noise, events.flicker
     values = {"refractory_ns": int(events.refractory_ns),
               "mismatch_std": events.thresholds.mismatch_std,
+              "mismatch_relative": events.thresholds.mismatch_relative,
               "shot_rate_hz": noise.shot_rate_hz,
               "shot_bright_factor": noise.shot_bright_factor,
               "leak_rate_hz": noise.leak_rate_hz,

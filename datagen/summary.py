@@ -26,7 +26,8 @@ def _sensor(s: SequenceSummary) -> str:
     lamp = (f"{v['flicker_hz']:g} Hz depth {v['flicker_depth']:.2f} area "
             f"{v['flicker_area']:.2f}") if v["flicker_hz"] > 0 else "none"
     return (f"\n    sensor: refractory {v['refractory_ns'] / 1e3:g} us, mismatch "
-            f"{v['mismatch_std']:.3f}, shot {v['shot_rate_hz']:.3g} Hz (bright x"
+            f"{v['mismatch_std']:.3f} + {v.get('mismatch_relative', 0.0):.1%} of C, shot "
+            f"{v['shot_rate_hz']:.3g} Hz (bright x"
             f"{v['shot_bright_factor']:.2f}), leak {v['leak_rate_hz']:.3g} Hz, hot pixels "
             f"{v['hot_pixel_fraction']:.2%} at {v['hot_pixel_rate_hz']:.3g} Hz, cutoff "
             f"{v['cutoff_hz']:.3g} Hz" + (" (ideal)" if v["cutoff_hz"] == 0 else "")

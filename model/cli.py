@@ -119,7 +119,7 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
-        from model.data.recording import open_recording
+        from datagen.recording import open_recording
         from model.inference.pretrained import resolve
         from model.inference.reconstruct import Reconstructor, plan_outputs, reconstruct
 

@@ -1,4 +1,5 @@
-"""Shared fixtures: small procedural textures, scenes and trajectories (all seeded)."""
+"""Shared fixtures: small procedural textures, scenes and trajectories (all seeded), and a
+tiny simulated dataset."""
 
 from __future__ import annotations
 
@@ -6,12 +7,28 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
 from esim_lite.geometry.camera import Intrinsics
 from esim_lite.geometry.scene import PlanarScene
 from esim_lite.geometry.trajectory import TrajectoryConfig, plane_extent_covering, sample_trajectory
 
 REAL_EVENTS = Path(__file__).resolve().parents[2] / "shared" / "real_events"
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="session")
+def tiny_shards(tmp_path_factory) -> Path:
+    """A tiny simulated dataset (configs/datagen_tiny.yaml, 4 sequences), made once per
+    test session and shared by the datagen and model tests."""
+    from datagen.config import DatagenConfig
+    from datagen.generate import generate
+    from esim_lite.core.dataconf import load_config
+
+    out = tmp_path_factory.mktemp("tiny_shards")
+    cfg = load_config(DatagenConfig, ROOT / "configs" / "datagen_tiny.yaml")
+    generate(cfg, out, n_seq=4, seed=11, show_progress=False)
+    return out
 
 
 def smooth_texture(seed: int, hw: tuple[int, int] = (384, 384), sigma: float = 3.0,

@@ -22,11 +22,16 @@ class ThresholdConfig:
         neg_range: (min, max) OFF threshold C- in log-intensity units.
         mismatch_std: std of the per-pixel Gaussian deviation around each threshold, drawn
             once per pixel (0 disables); results are clamped to >= 0.01.
+        mismatch_relative: a further std in proportion to the sequence's threshold (0.1:
+            10% of C+ for the ON map, of C- for the OFF one), added to ``mismatch_std``;
+            keeps low thresholds from being pushed to the clamp when thresholds are
+            drawn over a wide range.
     """
 
     pos_range: tuple[float, float] = (0.12, 0.24)
     neg_range: tuple[float, float] = (0.12, 0.24)
     mismatch_std: float = 0.0
+    mismatch_relative: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("pos_range", "neg_range"):
@@ -34,8 +39,8 @@ class ThresholdConfig:
             if not MIN_THRESHOLD <= lo <= hi:
                 raise ValueError(f"{name} must satisfy {MIN_THRESHOLD} <= min <= max, "
                                  f"got {(lo, hi)}")
-        if self.mismatch_std < 0:
-            raise ValueError("mismatch_std must be >= 0")
+        if self.mismatch_std < 0 or self.mismatch_relative < 0:
+            raise ValueError("mismatch_std and mismatch_relative must be >= 0")
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,8 +82,10 @@ def sample_thresholds(config: ThresholdConfig, hw: tuple[int, int],
     """Draw C+ and C- for one sequence, then the per-pixel mismatch maps if enabled."""
     pos = float(rng.uniform(*config.pos_range))
     neg = float(rng.uniform(*config.neg_range))
-    if config.mismatch_std == 0:
+    if config.mismatch_std == 0 and config.mismatch_relative == 0:
         return ContrastThresholds.uniform(pos, neg, hw)
-    pos_map = np.maximum(pos + config.mismatch_std * rng.standard_normal(hw), MIN_THRESHOLD)
-    neg_map = np.maximum(neg + config.mismatch_std * rng.standard_normal(hw), MIN_THRESHOLD)
+    std_pos = config.mismatch_std + config.mismatch_relative * pos
+    std_neg = config.mismatch_std + config.mismatch_relative * neg
+    pos_map = np.maximum(pos + std_pos * rng.standard_normal(hw), MIN_THRESHOLD)
+    neg_map = np.maximum(neg + std_neg * rng.standard_normal(hw), MIN_THRESHOLD)
     return ContrastThresholds(pos, neg, pos_map, neg_map)

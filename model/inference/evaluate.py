@@ -37,6 +37,8 @@ import cv2
 import numpy as np
 import torch
 
+from datagen.formats.base import READ_CHUNK_EVENTS
+from datagen.recording import Recording, open_recording
 from datagen.shard import ShardReader, find_shards
 from esim_lite.core.atomic import write_text
 from esim_lite.core.figures import contact_sheet, event_image, gray_to_rgb, write_png
@@ -44,8 +46,6 @@ from esim_lite.geometry.camera import hr_camera
 from model import checkpoint
 from model.archs.e2sri_arch import mode_of
 from model.data.dataset import index_samples
-from model.data.formats.base import READ_CHUNK_EVENTS
-from model.data.recording import Recording, open_recording
 from model.inference.baselines import EventFilter, FilterConfig, upsample
 from model.inference.reconstruct import OutputPlan, Reconstructor, output_times
 from model.inference.temporal import reference_motion, temporally_consistent, warp_error

@@ -25,14 +25,14 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from datagen.formats.base import READ_CHUNK_EVENTS
+from datagen.recording import Recording
 from esim_lite.core.atomic import atomic_path, write_text
 from esim_lite.core.events import Events
 from esim_lite.core.stacking import StackConfig, stack_span_ns, stack_to_input, stacks_around
 from model import checkpoint
 from model.archs.e2sri_arch import CENTRAL_OF_MODE, E2SRI, central_input
 from model.data.classical_flow import stack_flows
-from model.data.formats.base import READ_CHUNK_EVENTS
-from model.data.recording import Recording
 from model.inference.temporal import consistency_step
 
 log = logging.getLogger(__name__)

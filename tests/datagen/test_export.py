@@ -73,7 +73,7 @@ def test_event_utils_layout_is_the_packagers(shard, record, tmp_path):
 
 
 def test_event_utils_export_reads_back_as_the_same_sequence(shard, record, tmp_path):
-    from model.data.recording import open_recording
+    from datagen.recording import open_recording
 
     (path,) = export([shard], "event_utils", tmp_path, "seq_000000")
     assert_reads_back(open_recording(path), record)
@@ -127,7 +127,7 @@ def test_evreal_event_indices_pass_evreals_loader_and_match_its_converters(shard
 
 
 def test_ecd_text_folder_reads_back_and_has_calib_and_groundtruth(shard, record, tmp_path):
-    from model.data.recording import open_recording
+    from datagen.recording import open_recording
 
     (folder,) = export([shard], "txt", tmp_path, "seq_000000")
     assert_reads_back(open_recording(folder), record)
@@ -152,7 +152,7 @@ def test_export_cli_writes_every_sequence_and_names_a_missing_one(shard, tmp_pat
 
 
 def test_evreal_folders_open_as_recordings(shard, record, tmp_path):
-    from model.data.recording import open_recording
+    from datagen.recording import open_recording
 
     (folder,) = export([shard], "evreal", tmp_path, "seq_000000")
     rec = open_recording(folder)
@@ -161,7 +161,7 @@ def test_evreal_folders_open_as_recordings(shard, record, tmp_path):
 
 
 def test_a_broken_evreal_folder_is_named_with_its_problem(shard, tmp_path):
-    from model.data.recording import open_recording
+    from datagen.recording import open_recording
 
     (folder,) = export([shard], "evreal", tmp_path, "seq_000000")
     np.save(folder / "events_p.npy", np.load(folder / "events_p.npy")[:-5])

@@ -262,3 +262,14 @@ def test_random_start_spreads_pixels_between_their_levels():
     # without it every pixel sits at its reference: nothing below C+
     sim = EventSimulator(img0, 0, th)
     assert len(sim.step_log(np.log(1e-3 + img0) + np.float32(0.15), 1_000_000)) == 0
+
+
+def test_relative_mismatch_scales_with_each_threshold():
+    cfg = ThresholdConfig(pos_range=(0.2, 0.2), neg_range=(0.6, 0.6), mismatch_relative=0.1)
+    th = sample_thresholds(cfg, (200, 200), np.random.default_rng(0))
+    assert abs(th.pos_map.std() / 0.02 - 1) < 0.03 and abs(th.neg_map.std() / 0.06 - 1) < 0.03
+    assert abs(th.pos_map.mean() - 0.2) < 1e-3 and abs(th.neg_map.mean() - 0.6) < 2e-3
+    both = sample_thresholds(ThresholdConfig(pos_range=(0.2, 0.2), neg_range=(0.2, 0.2),
+                                             mismatch_std=0.01, mismatch_relative=0.1),
+                             (200, 200), np.random.default_rng(0))
+    assert abs(both.pos_map.std() / 0.03 - 1) < 0.03  # the two add: 0.01 + 10% of 0.2

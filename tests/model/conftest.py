@@ -1,4 +1,5 @@
-"""A tiny simulated dataset shared by the model tests (made once per test session)."""
+"""The model tests' tiny checkpoint (made once per test session) and config; the tiny
+simulated dataset (``tiny_shards``) comes from tests/conftest.py."""
 
 from __future__ import annotations
 
@@ -6,20 +7,10 @@ from pathlib import Path
 
 import pytest
 
-from datagen.config import DatagenConfig
-from datagen.generate import generate
 from esim_lite.core.dataconf import load_config
 from model.config import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-@pytest.fixture(scope="session")
-def tiny_shards(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("tiny_shards")
-    cfg = load_config(DatagenConfig, ROOT / "configs" / "datagen_tiny.yaml")
-    generate(cfg, out, n_seq=4, seed=11, show_progress=False)
-    return out
 
 
 def tiny_config(*overrides: str):

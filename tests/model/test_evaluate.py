@@ -7,7 +7,7 @@ import numpy as np
 
 from model.cli import evaluate_main
 from model.inference.evaluate import normalized, temporally_consistent, warp_error
-from tests.model.test_recording import events
+from tests.datagen.test_recording import events
 
 
 def moving_scene(n=6, shift=2):
@@ -42,7 +42,7 @@ def test_affine_normalisation_removes_scale_and_offset():
 
 def test_evaluate_on_held_out_shards_and_a_recording(tiny_shards, tiny_checkpoint, tmp_path,
                                                     capsys):
-    from tests.model.test_recording import write_hdf5
+    from tests.datagen.test_recording import write_hdf5
 
     rec = tmp_path / "with_aps.h5"
     write_hdf5(rec, events(n=8000, hw=(48, 64)), with_frames=True)
@@ -86,7 +86,7 @@ def test_evreal_protocol_compares_absolute_methods_as_they_are():
 def test_split_all_scores_every_sequence_and_frameless_recordings_go_to_the_figure(
         tiny_shards, tiny_checkpoint, tmp_path):
     from model.inference.evaluate import EvalOptions, evaluate
-    from tests.model.test_recording import write_text
+    from tests.datagen.test_recording import write_text
 
     opts = EvalOptions(baselines=("hf",), temporal=False)
     val = evaluate(tiny_checkpoint, tmp_path / "v", tiny_shards, options=opts)

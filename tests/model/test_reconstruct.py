@@ -6,12 +6,12 @@ import cv2
 import numpy as np
 import pytest
 
+from datagen.recording import open_recording
 from esim_lite.core.events import Events
 from model.cli import reconstruct_main
-from model.data.recording import open_recording
 from model.inference.reconstruct import EventWindow, Reconstructor, plan_outputs, reconstruct
 from tests.conftest import REAL_EVENTS
-from tests.model.test_recording import events, write_hdf5
+from tests.datagen.test_recording import events, write_hdf5
 
 
 def shard(tiny_shards):

@@ -15,7 +15,7 @@ Events come in chunks (:meth:`Recording.events`), so a file of any length is rea
 bounded memory; every chunk is checked (time order across chunks, coordinates inside the
 sensor, polarity) and a bad file fails with its path and the problem. APS frames, small by
 nature, are loaded whole as linear intensity in [0, 1]. Each format is one module of
-:mod:`model.data.formats`; this one only picks.
+:mod:`datagen.formats`; this one only picks.
 """
 
 from __future__ import annotations
@@ -25,12 +25,12 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from model.data.formats.base import Recording
-from model.data.formats.ecd_text import open_text
-from model.data.formats.event_utils import open_event_hdf5
-from model.data.formats.evreal import is_evreal, open_evreal
-from model.data.formats.faery_formats import open_aedat4, open_raw
-from model.data.formats.shard import open_shard
+from datagen.formats.base import Recording
+from datagen.formats.ecd_text import open_text
+from datagen.formats.event_utils import open_event_hdf5
+from datagen.formats.evreal import is_evreal, open_evreal
+from datagen.formats.faery_formats import open_aedat4, open_raw
+from datagen.formats.shard import open_shard
 
 __all__ = ["Recording", "open_recording", "tonic_events"]
 

@@ -9,8 +9,8 @@ import h5py
 import numpy as np
 import pytest
 
+from datagen.recording import open_recording
 from esim_lite.core.events import Events
-from model.data.recording import open_recording
 from tests.conftest import REAL_EVENTS
 
 ECD = REAL_EVENTS / "ecd_snippets"
@@ -266,7 +266,7 @@ def test_a_sensor_resolution_that_is_no_image_shape_is_refused(tmp_path):
 
 
 def test_tonic_events_are_the_structured_array_tonic_takes(tmp_path, tiny_shards):
-    from model.data.recording import tonic_events
+    from datagen.recording import tonic_events
 
     ev = events()
     write_hdf5(tmp_path / "e.h5", ev, with_frames=False)
@@ -289,7 +289,7 @@ def test_tonic_to_frame_counts_what_we_count(tmp_path):
     """tonic's own ToFrame (scripts/setup.sh installs it) as the oracle; a visible skip,
     not a silent pass, where tonic is missing."""
     tonic = pytest.importorskip("tonic")
-    from model.data.recording import tonic_events
+    from datagen.recording import tonic_events
 
     ev = events()
     write_hdf5(tmp_path / "e.h5", ev, with_frames=False)
@@ -368,7 +368,7 @@ def test_event_fields_stored_as_strings_are_named_when_opened(tmp_path, request,
 def test_decoded_arrays_of_a_non_numeric_dtype_are_refused_with_the_source():
     from pathlib import Path
 
-    from model.data.formats.base import checked_events
+    from datagen.formats.base import checked_events
 
     ok = np.array([1, 2])
     with pytest.raises(ValueError, match=r"rec.txt: event field t holds unicode strings"):

@@ -9,14 +9,14 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from esim_lite.core.events import Events
-from model.data.formats.base import (
+from datagen.formats.base import (
     Recording,
     check_field_dtype,
     checked_events,
     gray_image,
     sorted_frames,
 )
+from esim_lite.core.events import Events
 
 # event_utils' dataset names and the event field each holds
 FIELDS = {"xs": "x", "ys": "y", "ts": "t", "ps": "p"}

@@ -12,14 +12,14 @@ from pathlib import Path
 
 import numpy as np
 
-from esim_lite.core.events import Events
-from model.data.formats.base import (
+from datagen.formats.base import (
     Recording,
     check_field_dtype,
     checked_events,
     gray_image,
     sorted_frames,
 )
+from esim_lite.core.events import Events
 
 FILES = ("events_ts.npy", "events_xy.npy", "events_p.npy")
 

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from datagen.formats.base import Recording, checked_events, gray_image, sorted_frames
 from esim_lite.core.events import Events
-from model.data.formats.base import Recording, checked_events, gray_image, sorted_frames
 
 
 def _faery(path: Path):

@@ -12,14 +12,14 @@ import cv2
 import numba
 import numpy as np
 
-from esim_lite.core.events import Events
-from model.data.formats.base import (
+from datagen.formats.base import (
     READ_CHUNK_EVENTS,
     Recording,
     checked_events,
     gray_image,
     sorted_frames,
 )
+from esim_lite.core.events import Events
 
 log = logging.getLogger(__name__)
 

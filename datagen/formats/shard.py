@@ -6,10 +6,10 @@ from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
+from datagen.formats.base import Recording, check_field_dtype
+from datagen.formats.event_utils import FIELDS
 from datagen.shard import ShardReader
 from esim_lite.core.events import Events
-from model.data.formats.base import Recording, check_field_dtype
-from model.data.formats.event_utils import FIELDS
 
 
 def open_shard(path: Path, sequence: str | None, sensor_hw: tuple[int, int] | None = None

@@ -1,1 +1,0 @@
-"""One module per event-file format; :func:`model.data.recording.open_recording` picks."""
