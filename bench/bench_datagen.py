@@ -4,6 +4,7 @@ Run: .venv/bin/python bench/bench_datagen.py [--quick]
      .venv/bin/python bench/bench_datagen.py --ratio [--n-seq N] [--repeats R]
      .venv/bin/python bench/bench_datagen.py --ratio --compare-code DIR
      .venv/bin/python bench/bench_datagen.py --dynamic configs/datagen_dynamic.yaml [--n-seq N]
+     .venv/bin/python bench/bench_datagen.py --recipe configs/datagen_realistic.yaml [--n-seq N]
 ``--ratio``: the same N default sequences generated with each backend, runs interleaved
 (homography, Mitsuba, homography, ...; this VM drifts), per worker count: median seconds
 and Mitsuba / homography. With ``--compare-code DIR`` it also runs another checkout (e.g. a
@@ -11,7 +12,9 @@ git worktree of an older commit) in the same rotation: before/after a change.
 ``--dynamic CONFIG``: N sequences of today's single-plane homography dataset against N of
 CONFIG (moving objects, Mitsuba) with and without its ground truth and with the compiled
 exact renderer instead of Mitsuba, interleaved, one worker: the cost of dynamic scenes per
-sequence, per event and per render sample.
+sequence, per event and per render sample. ``--recipe CONFIG``: the same table for today's
+training config (configs/datagen_train.yaml's simulation) against CONFIG, with its own
+renderer and with the compiled exact one.
 Each case runs ``datagen generate`` as a child process into a fresh temporary folder and
 reports sequences/min, events/s (simulated events per wall second), the peak RSS of the
 largest process of the run (``getrusage(RUSAGE_CHILDREN)``: with workers, a worker or the
@@ -97,10 +100,15 @@ def main(argv: list[str] | None = None) -> int:
                         help="with --ratio: also the checkout in DIR, same rotation")
     parser.add_argument("--dynamic", metavar="CONFIG",
                         help="homography plane datasets against CONFIG's (Mitsuba, objects)")
-    parser.add_argument("--seed", type=int, default=0, help="dataset seed for --dynamic")
+    parser.add_argument("--recipe", metavar="CONFIG",
+                        help="today's training set against CONFIG (e.g. the realistic recipe)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="dataset seed for --dynamic and --recipe")
     args = parser.parse_args(argv)
     if args.dynamic:
         return dynamic(args.dynamic, args.n_seq, args.repeats, args.seed)
+    if args.recipe:
+        return recipe(args.recipe, args.n_seq, args.repeats, args.seed)
     if args.ratio or args.compare_code:
         return ratio(args.n_seq, args.repeats, [int(w) for w in args.workers.split(",")],
                      args.compare_code)
@@ -176,14 +184,36 @@ def ratio(n: int, repeats: int, workers: list[int], other: Path | None) -> int:
 def dynamic(config: str, n: int, repeats: int, seed: int) -> int:
     """Today's plane dataset (homography) against ``config`` with and without ground truth,
     runs interleaved, one worker; medians and ratios to the plane dataset."""
-    import statistics
-
-    cases = {"plane, homography (today)": (None, ["simulation.render.backend=homography"]),
+    cases = {BASE: (None, ["simulation.render.backend=homography"]),
              f"{config}": (config, []),
              f"{config}, no ground truth": (config, ["simulation.frames.ground_truth=[]"]),
              f"{config}, no ground truth, reference renderer": (
                  config, ["simulation.frames.ground_truth=[]",
                           "simulation.render.backend=reference"])}
+    return compare(cases, n, repeats, seed)
+
+
+def recipe(config: str, n: int, repeats: int, seed: int) -> int:
+    """Today's training set (configs/datagen_train.yaml's simulation, built-in textures so
+    that nothing needs installing) against the recipe ``config`` with its own renderer and
+    with the compiled reference renderer, interleaved, one worker."""
+    train = str(Path(__file__).resolve().parents[1] / "configs" / "datagen_train.yaml")
+    cases = {BASE: (train, ["textures.source=builtin", "textures.source_weights=null"]),
+             f"{config}": (config, []),
+             f"{config}, reference renderer": (config, ["simulation.render.backend=reference"])}
+    return compare(cases, n, repeats, seed)
+
+
+#: The first case of :func:`compare`, the one the others are divided by.
+BASE = "plane, homography (today)"
+
+
+def compare(cases: dict[str, tuple[str | None, list[str]]], n: int, repeats: int,
+            seed: int) -> int:
+    """Each case's ``n`` sequences, runs interleaved, one worker; medians and ratios to the
+    :data:`BASE` case per sequence, per event and per render sample."""
+    import statistics
+
     print(f"# {' '.join(['python'] + sys.argv)}")
     print(f"# {machine()}; {n} sequences per run, seed {seed}, 1 worker, {repeats} runs")
     times: dict[str, list[float]] = {}
@@ -193,8 +223,8 @@ def dynamic(config: str, n: int, repeats: int, seed: int) -> int:
             r = run_case(n, 1, sets, config=cfg, seed=seed)
             times.setdefault(label, []).append(r["seconds"])
             last[label] = r
-    base = statistics.median(times["plane, homography (today)"])
-    base_ev = last["plane, homography (today)"]
+    base = statistics.median(times[BASE])
+    base_ev = last[BASE]
     per_event = base / max(base_ev["events"], 1)
     per_sample = base / max(base_ev["samples"], 1)
     print("| dataset | seconds (median) | runs | s per sequence | x plane homography | events "

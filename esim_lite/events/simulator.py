@@ -37,7 +37,8 @@ class EventConfig:
         random_start: start every pixel at a random point between its two levels (its log
             intensity uniformly between ``C-`` below and ``C+`` above its reference), as
             the pixels of a running sensor stand when a recording starts; off: every pixel
-            starts at its reference (ESIM, the paper).
+            starts at its reference (ESIM, the paper). With leak on, pixels start between
+            their reference and ``C+`` above it (a leaking pixel's steady state) either way.
     """
 
     log_eps: float = 1e-3
@@ -101,8 +102,10 @@ class EventSimulator:
         latency_rng: draws the jitter (needed when ``latency.jitter_us > 0``).
         start_phase: float[H, W] in [0, 1): where each pixel starts between its levels (0:
             at ``C+`` above its reference, 1: ``C-`` below; see ``EventConfig.random_start``);
-            None: at its reference (with leak: a random share of the way to its next leak
-            event).
+            None: at its reference. With leak, a pixel starts a random share of the way to
+            its next leak event either way: that is where a leaking pixel stands in its
+            steady state, and a start below the reference would delay its first leak events
+            (in a short sequence, leak at ``C+ / (C+ + C-)`` of its rate).
         kernel: ``numba`` (fast), the ``numpy``/``python`` reference implementations, or
             ``torch`` (:mod:`esim_lite.events.torch_kernel`, on CUDA when torch sees a GPU, else on
             the CPU; imported only when asked for).
@@ -135,10 +138,10 @@ class EventSimulator:
             if bandwidth is not None and bandwidth.enabled else None
         self.log_prev = self._effective_log(first_log, self.t_ns)
         self.ref = self.log_prev.astype(np.float64)
-        if start_phase is not None:  # L - ref uniform in (-C-, C+]
+        if noise is not None and noise.leak_phase is not None:  # part-way to a leak event
+            self.ref -= noise.leak_phase * self._c_pos  # a leaking pixel's steady state
+        elif start_phase is not None:  # L - ref uniform in (-C-, C+]
             self.ref += start_phase * (self._c_pos + self._c_neg) - self._c_pos
-        elif noise is not None and noise.leak_phase is not None:  # part-way to a leak event
-            self.ref -= noise.leak_phase * self._c_pos
         self.last_t = np.full(self.hw, NEVER, np.int64)
         self.readout = ReadoutDelay(latency, self.hw, latency_rng) \
             if latency is not None and latency.enabled else None

@@ -273,3 +273,17 @@ def test_relative_mismatch_scales_with_each_threshold():
                                              mismatch_std=0.01, mismatch_relative=0.1),
                              (200, 200), np.random.default_rng(0))
     assert abs(both.pos_map.std() / 0.03 - 1) < 0.03  # the two add: 0.01 + 10% of 0.2
+
+
+def test_leak_keeps_its_rate_with_a_random_start():
+    """A random start must not delay the leak: over 0.25 s at 2 Hz half the pixels fire,
+    as without it (a start below the reference would give C+ / (C+ + C-) of that)."""
+    hw = (40, 50)
+    th = ContrastThresholds.uniform(0.2, 0.6, hw)
+    model = NoiseModel(NoiseConfig(leak_rate_hz=2.0, leak_rate_jitter=0.0), hw,
+                       np.random.default_rng(0))
+    img = np.full(hw, 0.5, np.float32)
+    sim = EventSimulator(img, 0, th, noise=model,
+                         start_phase=np.random.default_rng(1).random(hw))
+    n = sum(len(sim.step(img, k * 10_000_000)) for k in range(1, 26))
+    assert abs(n - 0.5 * 2000) < 5 * np.sqrt(2000 * 0.25)
