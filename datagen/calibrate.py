@@ -206,7 +206,12 @@ def preset_yaml(cals: Calibration | Sequence[Calibration], command: str = "") ->
     if with_thr:
         lines += ["    thresholds:"] + _threshold_lines(with_thr)
     else:
-        lines += ["    # thresholds: none of the recordings has frames; the base config's stay"]
+        on = sum(c.stats.on_fraction * c.stats.events for c in cals) / sum(
+            c.stats.events for c in cals)
+        lines += ["    # thresholds: none of the recordings has frames; the base config's stay.",
+                  f"    # The ON share {on:.3f} implies C+/C- = {(1 - on) / on:.2f} where the "
+                  "light ends where it began",
+                  "    # (C+ N_on = C- N_off; leak and noise events aside)"]
     ref = _pick(cals, lambda c: c.refractory.value)
     if ref is not None:
         r = ref.refractory

@@ -171,6 +171,8 @@ def test_without_frames_the_preset_says_thresholds_need_them():
     text = preset_yaml(cal)
     events = yaml.safe_load(text)["simulation"]["events"]
     assert "thresholds" not in events and "need APS frames" in text
+    on = float(np.mean(cal.stats.on_fraction))
+    assert f"implies C+/C- = {(1 - on) / on:.2f}" in text  # 0.5 ON: 1.00
     assert events["noise"]["shot_rate_hz"] > 0
 
 
