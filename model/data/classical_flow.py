@@ -11,7 +11,6 @@ from typing import Literal
 import cv2
 import numpy as np
 
-_DIS: dict[int, cv2.DISOpticalFlow] = {}  # one instance per preset, made on first use
 
 
 def stack_to_gray(stack: np.ndarray) -> np.ndarray:
@@ -30,11 +29,8 @@ def classical_flow(a: np.ndarray, b: np.ndarray,
         big = classical_flow(np.pad(a, pad, mode="edge"), np.pad(b, pad, mode="edge"),
                              method, preset)
         return np.ascontiguousarray(big[:h, :w])
-    if method == "dis":
-        dis = _DIS.get(preset)
-        if dis is None:
-            dis = _DIS[preset] = cv2.DISOpticalFlow_create(preset)
-        return dis.calc(a, b, None)
+    if method == "dis":  # a fresh instance: a reused one carries state from its last call
+        return cv2.DISOpticalFlow_create(preset).calc(a, b, None)
     if method == "farneback":
         return cv2.calcOpticalFlowFarneback(a, b, None, 0.5, 3, 9, 3, 5, 1.1, 0)
     raise ValueError(f"unknown classical flow method {method!r}")
