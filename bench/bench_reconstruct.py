@@ -1,11 +1,21 @@
-"""Reconstruction latency per output frame at 240x180, and memory on long recordings.
+"""Reconstruction latency per output frame at 240x180, per engine and sensor size with the
+shipped models, and memory on long recordings.
 
-Run: .venv/bin/python bench/bench_reconstruct.py [--skip-latency] [--skip-memory]
+Run: .venv/bin/python bench/bench_reconstruct.py [--skip-latency] [--skip-engines]
+     [--skip-memory] [--frames 5] [--sizes 128x128,240x180,346x260]
+(smoke run: --skip-latency --skip-memory --sizes 128x128 --frames 1)
 Latency: full-size E2SRI (random weights; compute does not depend on them) for 3 and 7
 stacks at x2 and x4 on a 240x180 stream of synthetic events, ~7,900 events per stack (the
 paper's density). Reported per output frame and split into stacking (SBN from the event
 window), flow (OpenCV DIS between the central and each side stack) and network (forward
 pass); the paper's Titan Xp figures are network-only (18.5, 19.4, 250.8, 450.9 ms).
+Engines: the shipped x2 and x4 models (`reconstruct`'s default) through
+`Reconstructor.from_state` with each installed engine (`model/inference/engines.py`), at
+128x128, 240x180 and 346x260 with the model's events per stack scaled by sensor area (as
+`reconstruct` does), on synthetic events: median ms per frame over `--frames` frames (after
+one warm-up frame) for stacking (`stacks_at`), flow and network, and the largest
+difference of the output image in [0, 1] from torch's on the same stacks. Exports land in
+the user's cache (see docs/evaluation.md), made before timing.
 Memory: `reconstruct` as a child process on an event_utils HDF5 file of 1 million and of
 100 million events (written here in chunks), 5 outputs spread over each file with the small
 config; peak RSS from getrusage of the child.
@@ -34,12 +44,12 @@ HW = (180, 240)
 PER_CHANNEL = 2637  # 3 x 2637 = 7,911 events per stack: 3,000 at 128x128 scaled by area
 
 
-def synthetic(n: int, seed: int, t0: int = 0) -> Events:
+def synthetic(n: int, seed: int, t0: int = 0, hw: tuple[int, int] = HW) -> Events:
     rng = np.random.default_rng(seed)
     t = t0 + np.sort(rng.integers(0, n * 10_000, n))  # ~100k events/s
-    return Events(rng.integers(0, HW[1], n).astype(np.int16),
-                  rng.integers(0, HW[0], n).astype(np.int16), t.astype(np.int64),
-                  rng.choice(np.array([-1, 1], np.int8), n), HW)
+    return Events(rng.integers(0, hw[1], n).astype(np.int16),
+                  rng.integers(0, hw[0], n).astype(np.int16), t.astype(np.int64),
+                  rng.choice(np.array([-1, 1], np.int8), n), hw)
 
 
 def latency(scale: int, n_stacks: int) -> dict[str, float]:
@@ -61,6 +71,55 @@ def latency(scale: int, n_stacks: int) -> dict[str, float]:
     stacking = time.perf_counter() - start
     _, timing = model.run(stacks, None)
     return {"stacking": stacking, **timing}
+
+
+def engine_frames(model: Reconstructor, events: Events, frames: int
+                  ) -> tuple[dict[str, float], list[np.ndarray]]:
+    """(median seconds per frame of stacking, flow and network, the output images) for
+    ``frames`` outputs at the ends of consecutive stacks, after one warm-up output."""
+    per, half = model.stacks.events_per_stack, model.net.config.n_stacks // 2
+    window = EventWindow(iter([events]), events.sensor_hw)
+    times: dict[str, list[float]] = {"stacking": [], "flow": [], "network": []}
+    images = []
+    for k in range(frames + 1):
+        t = int(events.t_ns[(half + 1 + k) * per - 1])
+        start = time.perf_counter()
+        given = model.stacks_at(window, t)
+        stacking = time.perf_counter() - start
+        image, timing = model.run(given.stacks, None)
+        if k:  # the first output warms up caches and allocators
+            for key, v in {"stacking": stacking, **timing}.items():
+                times[key].append(v)
+            images.append(image)
+    return {k: float(np.median(v)) for k, v in times.items()}, images
+
+
+def engine_rows(sizes: list[tuple[int, int]], frames: int) -> None:
+    from model.inference.engines import ENGINES, installed
+    from model.inference.pretrained import shipped_checkpoint
+
+    available = [e for e in ENGINES if installed(e)]
+    print("| sensor | scale | engine | events per stack | stacking ms | flow ms | network ms "
+          "| total ms | network vs torch | max abs diff vs torch |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for hw in sizes:
+        for scale in (2, 4):
+            ckpt = shipped_checkpoint(scale)
+            state = checkpoint.load(ckpt)
+            reference, torch_ms = None, None
+            for engine in available:
+                model = Reconstructor.from_state(state, str(ckpt), hw, device="cpu",
+                                                 engine=engine)
+                per = model.stacks.events_per_stack
+                events = synthetic((model.net.config.n_stacks + frames + 2) * per, 1, hw=hw)
+                t, images = engine_frames(model, events, frames)
+                if reference is None:  # torch comes first in ENGINES
+                    reference, torch_ms = images, t["network"]
+                diff = max(float(np.abs(a - b).max()) for a, b in zip(images, reference))
+                print(f"| {hw[1]}x{hw[0]} | x{scale} | {model.engine_name} | {per:,} | "
+                      f"{1e3 * t['stacking']:.1f} | {1e3 * t['flow']:.1f} | "
+                      f"{1e3 * t['network']:.1f} | {1e3 * sum(t.values()):.1f} | "
+                      f"{torch_ms / t['network']:.2f}x | {diff:.1e} |", flush=True)
 
 
 def write_h5(path: Path, n: int, chunk: int = 5_000_000) -> None:
@@ -109,7 +168,11 @@ def peak_rss(h5: Path, ckpt: Path, out: Path, rate_hz: float) -> tuple[float, fl
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--skip-latency", action="store_true")
+    parser.add_argument("--skip-engines", action="store_true")
     parser.add_argument("--skip-memory", action="store_true")
+    parser.add_argument("--frames", type=int, default=5, help="timed frames per engine row")
+    parser.add_argument("--sizes", default="128x128,240x180,346x260",
+                        help="sensor sizes (WxH) of the engine rows")
     args = parser.parse_args(argv)
     torch.set_num_threads(2)
     print(f"# {' '.join(['python'] + sys.argv)}; torch {torch.__version__}, CPU, 2 threads")
@@ -124,6 +187,10 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"| {n} | x{s} | {1e3 * t['stacking']:.0f} | {1e3 * t['flow']:.0f} | "
                       f"{1e3 * t['network']:.0f} | {1e3 * sum(t.values()):.0f} | "
                       f"{paper[(n, s)]} |", flush=True)
+    if not args.skip_engines:
+        print()
+        sizes = [tuple(int(v) for v in size.split("x"))[::-1] for size in args.sizes.split(",")]
+        engine_rows(sizes, args.frames)
     if not args.skip_memory:
         print("\n| events in file | file MB | recording s | last output at s | peak RSS MB | "
               "seconds |")

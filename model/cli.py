@@ -89,6 +89,14 @@ def _sensor(text: str | None) -> tuple[int, int] | None:
     return h, w
 
 
+def _engine_argument(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--engine", choices=["auto", "torch", "onnxruntime", "openvino"],
+                   default="auto", help="what runs the network: auto (default: the fastest "
+                   "installed on a CPU, openvino > onnxruntime > torch; torch on a GPU), "
+                   "torch (eager PyTorch, the reference), onnxruntime or openvino (the "
+                   "'fast' extra; exported once into ~/.cache/e2sr, see docs/evaluation.md)")
+
+
 def reconstruct_main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="reconstruct", description="Super-resolved images from "
                                 "an event recording (shard, HDF5, ECD text, AEDAT4, raw).")
@@ -115,6 +123,7 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
     p.add_argument("--temporal", type=float, metavar="WEIGHT",
                    help="blind temporal-consistency post-process (e.g. 0.6)")
     p.add_argument("--device", help="cpu or cuda (default: cuda if present)")
+    _engine_argument(p)
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
@@ -127,7 +136,7 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
         ckpt = resolve(args.checkpoint, args.scale)
         rec = open_recording(args.input, _sensor(args.sensor_size), args.sequence)
         model = Reconstructor.load(ckpt, rec.sensor_hw, args.mode, args.first_pass,
-                                   args.events_per_stack, args.device)
+                                   args.events_per_stack, args.device, args.engine)
         plan = plan_outputs(rec, model.stacks, args.at, args.rate, args.every)
         result = reconstruct(rec, model, args.out, plan, args.mp4, not args.no_progress,
                              args.limit, temporal=args.temporal)
@@ -137,7 +146,8 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
     n = len(result.frames)
     per = {k: 1e3 * v / max(n, 1) for k, v in result.seconds.items()}
     print(f"wrote {n} frame(s) to {args.out} ({rec.kind}, {rec.sensor_hw[1]}x{rec.sensor_hw[0]}"
-          f" sensor, {model.stacks.events_per_stack} events per stack); ms per frame: "
+          f" sensor, {model.stacks.events_per_stack} events per stack, engine "
+          f"{model.engine_name}); ms per frame: "
           + ", ".join(f"{k} {v:.1f}" for k, v in per.items()))
     return 0
 
@@ -167,6 +177,7 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-baselines", action="store_true")
     p.add_argument("--no-temporal", action="store_true", help="skip the ours+tc post-process")
     p.add_argument("--first-pass", help="main model checkpoint for a Duo-Pass model")
+    _engine_argument(p)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
@@ -180,7 +191,7 @@ def evaluate_main(argv: list[str] | None = None) -> int:
                               temporal=not args.no_temporal)
         rows = evaluate(resolve(args.checkpoint, args.scale), args.out, args.data,
                         args.recording, options, args.first_pass, args.split,
-                        _sensor(args.sensor_size))
+                        _sensor(args.sensor_size), args.engine)
     except (ConfigError, FileNotFoundError, ValueError) as exc:
         print(f"evaluate: error: {exc}", file=sys.stderr)
         return 2

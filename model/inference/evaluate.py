@@ -223,14 +223,15 @@ def score(seq: SequenceOutputs, scale: int, options: EvalOptions, lpips_net) -> 
 def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
              recordings: list[str] | None = None, options: EvalOptions | None = None,
              first_pass: str | None = None, split: Literal["val", "all"] = "val",
-             sensor_hw: tuple[int, int] | None = None) -> list[dict]:
+             sensor_hw: tuple[int, int] | None = None, engine: str = "torch") -> list[dict]:
     """Evaluate on shards and/or real recordings with APS frames; writes ``metrics.csv``,
     ``metrics.md`` and ``figure.png`` into ``out``; returns the rows.
 
     ``split``: ``val`` scores the held-out sequences of ``data`` by the checkpoint's own
     split (its validation set), ``all`` every sequence (a separate test set). Recordings
     without APS frames (``sensor_hw`` for formats that do not store it) are not scored:
-    they appear in the figure as events | HF | ours."""
+    they appear in the figure as events | HF | ours. ``engine`` runs the network
+    (:mod:`model.inference.engines`)."""
     options = options or EvalOptions()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -241,7 +242,8 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
 
     def model_for(hw: tuple[int, int]) -> Reconstructor:  # the checkpoint is read once
         if hw not in models:
-            models[hw] = Reconstructor.from_state(state, str(ckpt), hw, mode, first_pass)
+            models[hw] = Reconstructor.from_state(state, str(ckpt), hw, mode, first_pass,
+                                                  engine=engine)
         return models[hw]
 
     lpips_net = LPIPS()

@@ -33,6 +33,7 @@ from esim_lite.core.stacking import StackConfig, stack_span_ns, stack_to_input, 
 from model import checkpoint
 from model.archs.e2sri_arch import CENTRAL_OF_MODE, E2SRI, central_input
 from model.data.classical_flow import stack_flows
+from model.inference.engines import Forward, load_engine
 from model.inference.temporal import consistency_step
 
 log = logging.getLogger(__name__)
@@ -116,27 +117,33 @@ class StackedEvents:
 
 @dataclass(frozen=True, eq=False)
 class Reconstructor:
-    """A loaded network (plus its first pass for Duo-Pass) and how to stack events for it."""
+    """A loaded network (plus its first pass for Duo-Pass) and how to stack events for it.
+
+    ``engine`` runs the network's forward pass (:mod:`model.inference.engines`; None: the
+    network in eager PyTorch); ``first_pass`` is the first pass's, on the same engine."""
 
     net: E2SRI
-    first_pass: E2SRI | None
+    first_pass: Forward | None
     stacks: StackConfig
     device: torch.device
+    engine: Forward | None = None
 
     @classmethod
     def load(cls, ckpt: str | Path, sensor_hw: tuple[int, int], mode: Mode = "main",
              first_pass: str | Path | None = None, events_per_stack: int | None = None,
-             device: str | None = None) -> Reconstructor:
+             device: str | None = None, engine: str = "torch") -> Reconstructor:
         """Read ``ckpt`` and prepare it for a ``sensor_hw`` sensor (see :meth:`from_state`)."""
         return cls.from_state(checkpoint.load(ckpt), str(ckpt), sensor_hw, mode, first_pass,
-                              events_per_stack, device)
+                              events_per_stack, device, engine)
 
     @classmethod
     def from_state(cls, state: dict, ckpt: str, sensor_hw: tuple[int, int],
                    mode: Mode = "main", first_pass: str | Path | None = None,
-                   events_per_stack: int | None = None, device: str | None = None
-                   ) -> Reconstructor:
-        """From an already loaded checkpoint ``state`` (``ckpt`` names it in errors)."""
+                   events_per_stack: int | None = None, device: str | None = None,
+                   engine: str = "torch") -> Reconstructor:
+        """From an already loaded checkpoint ``state`` (``ckpt`` names it in errors);
+        ``engine``: ``torch``, ``onnxruntime``, ``openvino`` or ``auto``
+        (:func:`model.inference.engines.choose`)."""
         dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         net = checkpoint.model_from(state, dev, ckpt)
         if net.config.central != CENTRAL_OF_MODE[mode]:
@@ -149,7 +156,7 @@ class Reconstructor:
             path = first_pass or checkpoint.config_of(state).run.first_pass
             if not path:
                 raise ValueError("duo-pass needs --first-pass (a main model checkpoint)")
-            first = checkpoint.load_model(path, dev)
+            first = load_engine(engine, checkpoint.load_model(path, dev), dev, sensor_hw)
         trained = checkpoint.config_of(state, ckpt).data.stacks
         trained_hw = tuple(state.get("sensor_hw") or checkpoint.TRAINED_SENSOR_HW)
         if "sensor_hw" not in state:
@@ -160,7 +167,13 @@ class Reconstructor:
             per_channel = max(1, round(trained.events_per_channel * area))
         else:
             per_channel = max(1, events_per_stack // trained.channels)
-        return cls(net, first, replace(trained, events_per_channel=per_channel), dev)
+        return cls(net, first, replace(trained, events_per_channel=per_channel), dev,
+                   load_engine(engine, net, dev, sensor_hw))
+
+    @property
+    def engine_name(self) -> str:
+        """The engine running the network (``torch`` when none was given)."""
+        return getattr(self.engine, "name", "torch")
 
     def event_window(self, chunks: Iterator[Events], hw: tuple[int, int],
                      chunk_size: int) -> EventWindow:
@@ -203,7 +216,7 @@ class Reconstructor:
         x = torch.from_numpy(stack_to_input(stacks))[None].to(self.device)
         f = torch.from_numpy(flows)[None].to(self.device)
         central = self._central(x, f, aps)
-        out = self.net(x, central, f).clamp(0, 1)[0, 0].float().cpu().numpy()
+        out = (self.engine or self.net)(x, central, f).clamp(0, 1)[0, 0].float().cpu().numpy()
         if self.device.type == "cuda":
             torch.cuda.synchronize()
         timing["network"] = time.perf_counter() - start

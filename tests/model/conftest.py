@@ -3,6 +3,8 @@ simulated dataset (``tiny_shards``) comes from tests/conftest.py."""
 
 from __future__ import annotations
 
+import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -11,6 +13,22 @@ from esim_lite.core.dataconf import load_config
 from model.config import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="session", autouse=True)
+def engine_cache(tmp_path_factory) -> Iterator[Path]:
+    """Networks exported for ONNX Runtime / OpenVINO (``reconstruct --engine auto``) go to a
+    temporary cache, never the user's ~/.cache/e2sr."""
+    from model.inference.graph_cache import CACHE_ENV
+
+    path = tmp_path_factory.mktemp("e2sr_cache")
+    before = os.environ.get(CACHE_ENV)
+    os.environ[CACHE_ENV] = str(path)
+    yield path
+    if before is None:
+        os.environ.pop(CACHE_ENV, None)
+    else:
+        os.environ[CACHE_ENV] = before
 
 
 def tiny_config(*overrides: str):

@@ -1,0 +1,230 @@
+"""Engines for the network's forward pass: eager PyTorch, ONNX Runtime, OpenVINO.
+
+Only the forward pass moves to an engine; stacking and flow stay in NumPy/OpenCV. Every
+engine is called like the network itself, ``engine(stacks, central, flows)`` with torch
+tensors ``(B, n, c, H, W)``, ``(B, c_central, H, W)``, ``(B, n, 2, H, W)``, and returns
+``(B, 1, scale H, scale W)`` (not clamped) on the inputs' device.
+
+- ``torch``: the network in eager PyTorch, on any device: the reference and the fallback.
+- ``onnxruntime``: the ONNX export (:mod:`model.inference.graph_export`) on ONNX
+  Runtime's CPU provider.
+- ``openvino``: OpenVINO's IR on its CPU plugin, compiled for the sensor size at load
+  (static shapes run faster than dynamic ones) and for any other size on first use;
+  precision pinned to float32 (on CPUs with bf16 units OpenVINO would otherwise use them).
+- ``auto``: ``torch`` on a GPU; on a CPU the first installed of :data:`PREFERENCE`
+  (OpenVINO was the fastest, ONNX Runtime second, on the 2-core CPU of
+  ``docs/benchmarks.md``); when that engine fails to export or compile, a warning and
+  ``torch``.
+
+The exported file is made once per network and engine version and kept in the user's cache
+(:mod:`model.inference.graph_cache`). The CPU engines use as many threads as torch
+(``torch.get_num_threads()``, e.g. ``OMP_NUM_THREADS``). Their packages come with the
+``fast`` extra: ``pip install -e ".[fast]"``.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib.util
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from importlib.metadata import version
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+
+from model import checkpoint
+from model.archs.e2sri_arch import E2SRI
+from model.inference import graph_export
+from model.inference.graph_cache import CacheKey, cached_file, weights_digest
+
+log = logging.getLogger(__name__)
+
+Forward = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
+"""The network's forward pass: ``(stacks, central, flows) -> image``."""
+
+ENGINES = ("torch", "onnxruntime", "openvino")
+PREFERENCE = ("openvino", "onnxruntime", "torch")
+EXTRA = "fast"
+PACKAGES = {"torch": (), "onnxruntime": ("onnxruntime", "onnx"), "openvino": ("openvino",)}
+"""The Python packages each engine needs (``onnx``: torch's ONNX exporter)."""
+
+
+class EngineMissing(ValueError):
+    """An engine was asked for whose package is not installed."""
+
+
+def missing_packages(engine: str) -> list[str]:
+    return [p for p in PACKAGES[engine] if importlib.util.find_spec(p) is None]
+
+
+def installed(engine: str) -> bool:
+    return not missing_packages(engine)
+
+
+def choose(engine: str, device: torch.device) -> str:
+    """The engine to use for ``engine`` (``auto`` or one of :data:`ENGINES`).
+
+    Raises:
+        ValueError: an unknown name.
+        EngineMissing: the engine's package is not installed (the message names it and the
+            extra that brings it).
+    """
+    if engine == "auto":
+        return "torch" if device.type != "cpu" else next(e for e in PREFERENCE if installed(e))
+    if engine not in ENGINES:
+        raise ValueError(f"unknown engine {engine!r}: choose auto, {', '.join(ENGINES)}")
+    missing = missing_packages(engine)
+    if missing:
+        raise EngineMissing(f"engine {engine!r} needs {' and '.join(missing)}, which "
+                            f"{'is' if len(missing) == 1 else 'are'} not installed: pip "
+                            f"install 'e2sr[{EXTRA}]' (or pip install {' '.join(missing)})")
+    return engine
+
+
+def _arrays(tensors: tuple[torch.Tensor, ...]) -> dict[str, np.ndarray]:
+    return {name: np.ascontiguousarray(t.detach().to("cpu", torch.float32).numpy())
+            for name, t in zip(graph_export.INPUT_NAMES, tensors)}
+
+
+@dataclass(frozen=True, eq=False)
+class TorchEngine:
+    """The network itself (eager PyTorch)."""
+
+    net: E2SRI
+    name: ClassVar[str] = "torch"
+
+    def __call__(self, stacks: torch.Tensor, central: torch.Tensor,
+                 flows: torch.Tensor) -> torch.Tensor:
+        return self.net(stacks, central, flows)
+
+
+@dataclass(frozen=True, eq=False)
+class OnnxRuntimeEngine:
+    """An ONNX file on ONNX Runtime's CPU execution provider."""
+
+    path: Path
+    threads: int
+    name: ClassVar[str] = "onnxruntime"
+    session: Any = field(init=False, repr=False)
+    inputs: tuple[str, ...] = field(init=False)
+
+    def __post_init__(self) -> None:
+        import onnxruntime as ort
+
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = self.threads
+        options.inter_op_num_threads = 1
+        options.log_severity_level = 3  # errors only
+        session = ort.InferenceSession(str(self.path), options,
+                                       providers=["CPUExecutionProvider"])
+        object.__setattr__(self, "session", session)
+        object.__setattr__(self, "inputs", tuple(i.name for i in session.get_inputs()))
+
+    def __call__(self, stacks: torch.Tensor, central: torch.Tensor,
+                 flows: torch.Tensor) -> torch.Tensor:
+        arrays = _arrays((stacks, central, flows))
+        out = self.session.run(None, {k: arrays[k] for k in self.inputs})[0]
+        return torch.from_numpy(out).to(stacks.device)
+
+
+@dataclass(frozen=True, eq=False)
+class OpenVinoEngine:
+    """OpenVINO IR on the CPU plugin; one compiled graph per input shape, made on first
+    use (``sensor_hw``'s at load)."""
+
+    path: Path
+    threads: int
+    sensor_hw: tuple[int, int] | None = None
+    name: ClassVar[str] = "openvino"
+    core: Any = field(init=False, repr=False)
+    model: Any = field(init=False, repr=False)
+    inputs: tuple[str, ...] = field(init=False)
+    requests: dict = field(init=False, repr=False, default_factory=dict)
+
+    def __post_init__(self) -> None:
+        import openvino as ov
+
+        core = ov.Core()
+        model = graph_export.read_openvino(self.path, core)
+        object.__setattr__(self, "core", core)
+        object.__setattr__(self, "model", model)
+        object.__setattr__(self, "inputs", tuple(  # a port has several names; ours is one
+            next(n for n in graph_export.INPUT_NAMES if n in p.get_names())
+            for p in model.inputs))
+        if self.sensor_hw is not None:
+            self._request(self._shapes_at(self.sensor_hw))
+
+    def _shapes_at(self, hw: tuple[int, int]) -> tuple[tuple[int, ...], ...]:
+        """The graph's input shapes for batch 1 at sensor size ``hw``."""
+        shapes = []
+        for port in self.model.inputs:
+            dims = [d.get_length() if d.is_static else 1 for d in port.get_partial_shape()]
+            shapes.append(tuple(dims[:-2]) + tuple(hw))
+        return tuple(shapes)
+
+    def _request(self, shapes: tuple[tuple[int, ...], ...]):
+        if shapes not in self.requests:
+            import openvino as ov
+
+            model = self.model.clone()
+            model.reshape({p: ov.PartialShape(list(s)) for p, s in zip(model.inputs, shapes)})
+            config = {"INFERENCE_NUM_THREADS": self.threads, "INFERENCE_PRECISION_HINT": "f32",
+                      "PERFORMANCE_HINT": "LATENCY", "NUM_STREAMS": 1}
+            compiled = self.core.compile_model(model, "CPU", config)
+            self.requests[shapes] = compiled.create_infer_request()
+        return self.requests[shapes]
+
+    def __call__(self, stacks: torch.Tensor, central: torch.Tensor,
+                 flows: torch.Tensor) -> torch.Tensor:
+        arrays = _arrays((stacks, central, flows))
+        feed = [arrays[k] for k in self.inputs]
+        request = self._request(tuple(a.shape for a in feed))
+        out = request.infer(feed)[0]
+        return torch.from_numpy(np.array(out, copy=True)).to(stacks.device)
+
+
+def load_engine(engine: str, net: E2SRI, device: torch.device,
+                sensor_hw: tuple[int, int] | None = None, cache: Path | None = None
+                ) -> TorchEngine | OnnxRuntimeEngine | OpenVinoEngine:
+    """``net``'s forward pass on ``engine`` (``auto`` or one of :data:`ENGINES`), exported
+    into (or reused from) the cache folder ``cache`` (default: :func:`cache_root`)."""
+    chosen = choose(engine, device)
+    if chosen == "torch":
+        return TorchEngine(net)
+    try:
+        return _compiled(chosen, net, sensor_hw, cache)
+    except Exception as exc:
+        if engine != "auto":
+            raise
+        log.warning("engine %s failed (%s: %s); using torch", chosen, type(exc).__name__, exc)
+        return TorchEngine(net)
+
+
+def _compiled(engine: str, net: E2SRI, sensor_hw: tuple[int, int] | None,
+              cache: Path | None) -> OnnxRuntimeEngine | OpenVinoEngine:
+    suffix, export = _EXPORTS[engine]
+    key = CacheKey(weights_digest(net, checkpoint.net_args(net)), engine, version(engine),
+                   suffix)
+    build = functools.partial(export, net)
+    threads = torch.get_num_threads()
+
+    def make(path: Path) -> OnnxRuntimeEngine | OpenVinoEngine:
+        if engine == "onnxruntime":
+            return OnnxRuntimeEngine(path, threads)
+        return OpenVinoEngine(path, threads, sensor_hw)
+
+    path = cached_file(key, build, cache)
+    try:
+        return make(path)
+    except Exception as exc:  # an unreadable cache entry: export once more, then give up
+        log.warning("%s: cannot be loaded (%s); exporting again", path, exc)
+        return make(cached_file(key, build, cache, rebuild=True))
+
+
+_EXPORTS = {"onnxruntime": (".onnx", graph_export.export_onnx),
+            "openvino": (".npz", graph_export.export_openvino)}
+"""Each compiled engine's cache file suffix and exporter."""
