@@ -12,7 +12,6 @@ import cv2
 import numpy as np
 
 
-
 def stack_to_gray(stack: np.ndarray) -> np.ndarray:
     """uint8[H, W]: the mean over an SBN stack's channels (128 where nothing fired)."""
     return np.round(stack.astype(np.float32).mean(axis=0)).astype(np.uint8)
