@@ -61,6 +61,9 @@ class ReplaySampler:
     """Stands in for the adaptive sampler: steps to the given render times (ns), in order,
     accepting each, so two renderers can be compared on the same time grid."""
 
+    #: no step cap of its own: the grid is given (the sequence caps steps by these too)
+    budget = strict_budget = float("inf")
+
     def __init__(self, times_ns: np.ndarray) -> None:
         self._times = iter(int(t) for t in times_ns[1:])
         self._t = int(times_ns[0])

@@ -222,7 +222,11 @@ def _run(renderer: Renderer, stage: _Stage, thresholds: ContrastThresholds,
                          refractory_ns=ev_cfg.refractory_ns, noise=noise,
                          bandwidth=ev_cfg.bandwidth, latency=ev_cfg.latency,
                          latency_rng=latency_rng, start_phase=start)
-    sampler = AdaptiveSampler(config.sampling, rig.event, thresholds.min_threshold)
+    nominal = min(thresholds.pos, thresholds.neg)
+    sampler = AdaptiveSampler(config.sampling, rig.event, nominal,
+                              np.minimum(thresholds.pos_map, thresholds.neg_map)) \
+        if thresholds.has_mismatch else \
+        AdaptiveSampler(config.sampling, rig.event, thresholds.min_threshold)
     schedule = FrameSchedule(config.frames, config.duration_s)
     log_img = log_intensity(image, ev_cfg.log_eps)
     frames = [stage.frame(renderer, 0)]
@@ -231,8 +235,8 @@ def _run(renderer: Renderer, stage: _Stage, thresholds: ContrastThresholds,
     while t < t_end and not schedule.done():
         step_s = sampler.propose(log_img, pose, twist, *stage.motion(*state))
         # what changes with nothing moving: the low-passed signal relaxing, the lamp
-        still = min(sim.max_step(sampler.budget),
-                    math.inf if flicker is None else flicker.max_step(sampler.budget))
+        still = min(sim.max_step(sampler.strict_budget),
+                    math.inf if flicker is None else flicker.max_step(sampler.strict_budget))
         if still < step_s:
             step_s = max(still, config.sampling.min_step_s)
         while True:

@@ -256,10 +256,23 @@ def dynamic_bounds(log_img, flow, ids, band_px):
 class AdaptiveSampler:
     """Proposes the next step for one camera and reviews the realised change."""
 
-    def __init__(self, config: SamplingConfig, camera: Intrinsics, min_threshold: float):
+    def __init__(self, config: SamplingConfig, camera: Intrinsics, min_threshold: float,
+                 pixel_thresholds: np.ndarray | None = None):
+        """``min_threshold``: the budget is ``lambda`` times it. ``pixel_thresholds``
+        (float[H, W], each pixel's smaller threshold, at least ``min_threshold``): with
+        mismatch, each pixel's change is held to ``lambda`` times its *own* threshold
+        (the review weighs it by ``min_threshold / threshold``) instead of every pixel to
+        the smallest one; :attr:`strict_budget` stays ``lambda`` times the smallest."""
         self.config = config
         self.camera = camera
         self.budget = config.contrast_fraction * float(min_threshold)
+        self.strict_budget = self.budget
+        self._weight = None
+        if pixel_thresholds is not None:
+            low = float(np.min(pixel_thresholds))
+            self.strict_budget = config.contrast_fraction * low
+            if float(np.max(pixel_thresholds)) > low:
+                self._weight = (float(min_threshold) / pixel_thresholds).astype(np.float32)
         self.gain = 1.0
         self.rejected = 0
         self.edge_limited = 0
@@ -300,10 +313,13 @@ class AdaptiveSampler:
         return float(np.clip(min(dt, edge_dt), cfg.min_step_s, cfg.max_step_s))
 
     def change(self, log_before: np.ndarray, log_after: np.ndarray) -> float:
-        """The largest ``|L1 - L0|`` that the review checks: every pixel for a plane; with
-        moving objects, every pixel outside the band around the occlusion boundaries and
-        the image border seen at the proposal (the motion bound covers that band)."""
+        """The largest ``|L1 - L0|`` that the review checks (weighed by each pixel's
+        threshold when the sampler has them): every pixel for a plane; with moving
+        objects, every pixel outside the band around the occlusion boundaries and the image
+        border seen at the proposal (the motion bound covers that band)."""
         diff = np.abs(log_after - log_before)
+        if self._weight is not None:
+            diff = diff * self._weight
         if self._band is not None:
             diff = np.where(self._band, 0.0, diff)
         return float(diff.max())

@@ -86,3 +86,25 @@ def test_without_adaptive_sampling_fast_motion_loses_events():
     assert len(steps_ad) < len(steps_ref) / 2
     assert abs(n_ad - n_ref) <= 0.005 * n_ref
     assert n_coarse < 0.8 * n_ref
+
+
+def test_with_mismatch_each_pixel_is_held_to_its_own_threshold():
+    """A step may move a pixel by lambda times its own threshold, not by lambda times the
+    smallest one on the sensor; the still-image bounds keep the strict budget."""
+    from esim_lite.events.sampling import AdaptiveSampler
+
+    cam = Intrinsics.from_fov(8, 4, 60.0)
+    pixel = np.full((4, 8), 0.4)
+    pixel[:, :4] = 0.2  # left half: the low thresholds
+    cfg = SamplingConfig(contrast_fraction=0.5)
+    per_pixel = AdaptiveSampler(cfg, cam, 0.2, pixel)
+    strict = AdaptiveSampler(cfg, cam, 0.2)
+    before = np.zeros((4, 8), np.float32)
+    right = before.copy()
+    right[:, 4:] = 0.15  # 0.375 of the right half's 0.4: within lambda = 0.5
+    left = before.copy()
+    left[:, :4] = 0.15  # 0.75 of the left half's 0.2: over
+    assert per_pixel.review(per_pixel.change(before, right), 1e-3) is None
+    assert strict.review(strict.change(before, right), 1e-3) is not None
+    assert per_pixel.review(per_pixel.change(before, left), 1e-3) is not None
+    assert per_pixel.strict_budget == strict.budget == pytest.approx(0.1)
