@@ -167,24 +167,16 @@ def simulated_events(pair: Pair, quick: bool, index: int, seed: int = 0
     from datagen.sampling import sample_sequence
     from datagen.textures import TextureSampler
     from esim_lite.core.dataconf import load_config
-    from esim_lite.render.renderer import make_renderer
-    from esim_lite.sequence import sample_footprints, simulate
+    from esim_lite.sequence import simulate
 
     config = load_config(DatagenConfig, list(pair.configs),
                          [*pair.sets, *(pair.quick if quick else ())])
     spec = sample_sequence(config.simulation, TextureSampler(config.textures), seed, index,
                            config.sensor_ranges)
     sim = dataclasses.replace(config.simulation, events=spec.events)
-    rig = sim.camera.rig()
-    renderer = make_renderer(spec.scene, rig.cameras(), sim.render,
-                             sample_footprints(spec.scene, spec.trajectory, rig, sim.render))
-    try:
-        parts = [chunk.events for chunk in simulate(spec.scene, spec.trajectory,
-                                                    spec.thresholds, sim, spec.noise_rng,
-                                                    renderer=renderer)]
-    finally:
-        renderer.close()
-    return Events.concatenate(parts, rig.event.hw), spec.events
+    parts = [chunk.events for chunk in simulate(spec.scene, spec.trajectory, spec.thresholds,
+                                                sim, spec.noise_rng)]
+    return Events.concatenate(parts, sim.camera.rig().event.hw), spec.events
 
 
 def _cell(value: float, missing: str = "n/a") -> str:

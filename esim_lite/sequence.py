@@ -222,11 +222,8 @@ def _run(renderer: Renderer, stage: _Stage, thresholds: ContrastThresholds,
                          refractory_ns=ev_cfg.refractory_ns, noise=noise,
                          bandwidth=ev_cfg.bandwidth, latency=ev_cfg.latency,
                          latency_rng=latency_rng, start_phase=start)
-    nominal = min(thresholds.pos, thresholds.neg)
-    sampler = AdaptiveSampler(config.sampling, rig.event, nominal,
-                              np.minimum(thresholds.pos_map, thresholds.neg_map)) \
-        if thresholds.has_mismatch else \
-        AdaptiveSampler(config.sampling, rig.event, thresholds.min_threshold)
+    sampler = AdaptiveSampler(config.sampling, rig.event, min(thresholds.pos, thresholds.neg),
+                              np.minimum(thresholds.pos_map, thresholds.neg_map))
     schedule = FrameSchedule(config.frames, config.duration_s)
     log_img = log_intensity(image, ev_cfg.log_eps)
     frames = [stage.frame(renderer, 0)]
