@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import torch
+import torch.nn.functional as F
 from torch import nn
 
 #: (kernel, stride, padding) of the back-projection up/down sampling for each scale.
@@ -43,3 +45,44 @@ class ResBlock(nn.Module):
 
 def res_stack(channels: int, n: int) -> nn.Sequential:
     return nn.Sequential(*[ResBlock(channels) for _ in range(n)])
+
+
+class SubPixelLift(nn.Module):
+    """Pixel shuffle by ``scale``, optionally followed by a fixed anti-grid filter.
+
+    A sub-pixel convolution computes each of the ``scale^2`` output phases with its own
+    weights, so even a constant input comes out with a period-``scale`` pattern: the grid
+    of the checkerboard-artifact literature (Sugawara et al., "Super-resolution using
+    convolutional neural networks without any checkerboard artifacts", ICIP 2018). With
+    ``smooth``, every channel is then convolved with the separable kernel
+    ``box(scale) * box(2)`` (length ``scale + 1``, symmetric, so no shift), whose frequency
+    response is zero at every multiple of ``2 pi / scale``: a period-``scale`` pattern
+    leaves only its mean, so a constant input gives a constant output whatever the weights.
+    The filter has no parameters and adds nothing to the state dict.
+    """
+
+    def __init__(self, scale: int, smooth: bool = False) -> None:
+        super().__init__()
+        self.scale, self.smooth = scale, smooth
+        self.shuffle = nn.PixelShuffle(scale)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        y = self.shuffle(x)
+        if not self.smooth or self.scale == 1:
+            return y
+        taps = anti_grid_taps(self.scale).to(dtype=y.dtype, device=y.device)
+        c, k = y.shape[1], taps.numel()
+        y = F.pad(y, (self.scale // 2,) * 4, mode="replicate")
+        y = F.conv2d(y, taps.view(1, 1, 1, k).expand(c, 1, 1, k), groups=c)
+        return F.conv2d(y, taps.view(1, 1, k, 1).expand(c, 1, k, 1), groups=c)
+
+
+def anti_grid_taps(scale: int) -> torch.Tensor:
+    """``box(scale) * box(2)``, normalised: ``scale + 1`` taps, e.g. [1, 2, 1] / 4 for 2 and
+    [1, 2, 2, 2, 1] / 8 for 4 (even scales). Its DTFT vanishes at ``2 pi k / scale`` for
+    k = 1 .. scale - 1."""
+    if scale < 2 or scale % 2:
+        raise ValueError(f"the anti-grid filter needs an even scale, got {scale}")
+    taps = torch.full((scale + 1,), 1.0, dtype=torch.float64)
+    taps[0] = taps[-1] = 0.5
+    return (taps / taps.sum()).float()

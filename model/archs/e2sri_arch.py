@@ -31,7 +31,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from esim_lite.geometry.camera import check_scales
-from model.archs.blocks import conv, deconv, down, res_stack
+from model.archs.blocks import SubPixelLift, conv, deconv, down, res_stack
 from model.archs.flow import FlowNet
 
 
@@ -62,6 +62,12 @@ class NetConfig:
             with wider convolutions, which CPUs run far more efficiently than narrow ones;
             the final lift is then by ``scale x fold``. Sizes that ``fold`` does not divide
             are zero-padded (no events, no flow) and cropped back.
+        lift: with ``state: lr``, how the sub-pixel lift ends. ``shuffle`` (the shipped
+            models until the realistic-data retrain): a plain pixel shuffle, whose
+            per-phase weights leave a faint period-``scale`` grid in flat regions.
+            ``smooth``: the shuffle followed by a fixed, parameter-free filter that removes
+            any period-``scale`` pattern (:class:`model.archs.blocks.SubPixelLift`); the
+            state dict is the same, so a ``shuffle`` model warm-starts a ``smooth`` one.
     """
 
     scale: int = 2
@@ -75,11 +81,14 @@ class NetConfig:
     blocks: int = 5
     state: Literal["hr", "lr"] = "hr"
     fold: int = 1
+    lift: Literal["shuffle", "smooth"] = "shuffle"
 
     def __post_init__(self) -> None:
         if self.fold < 1 or (self.fold > 1 and self.state != "lr"):
             raise ValueError("fold must be >= 1, and > 1 only with state: lr")
         check_scales((self.scale,), "model.scale")
+        if self.lift not in ("shuffle", "smooth"):
+            raise ValueError(f"model.lift must be shuffle or smooth, got {self.lift!r}")
         if self.n_stacks < 3 or self.n_stacks % 2 == 0:
             raise ValueError(f"n_stacks must be odd and >= 3, got {self.n_stacks}")
         if min(self.base_channels, self.hr_channels, self.c_blocks, self.blocks) < 1:
@@ -125,7 +134,8 @@ class E2SRI(nn.Module):
             lift = s * cfg.fold
             self.mix = nn.Sequential(conv((cfg.n_stacks - 1) * b, b),
                                      nn.Conv2d(b, lift * lift * h, 3, 1, 1),
-                                     nn.PixelShuffle(lift), nn.PReLU(h), conv(h, 1, act=False))
+                                     SubPixelLift(lift, cfg.lift == "smooth"), nn.PReLU(h),
+                                     conv(h, 1, act=False))
         self.flow_net = FlowNet(cfg.stack_channels) if cfg.flow == "learned" else None
 
     def forward(self, stacks: torch.Tensor, central: torch.Tensor,

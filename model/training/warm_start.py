@@ -1,6 +1,7 @@
 """Start a network from another one's weights: an x4 run from a trained x2 model.
 
-Only the scale may differ between the two networks. Every tensor whose name and shape agree
+Only the scale and the lift's ending (``lift``: the parameter-free anti-grid filter) may
+differ between the two networks. Every tensor whose name and shape agree
 is copied. In the LR-state variant the one scale-dependent layer is the sub-pixel lift
 (``mix.1``: ``scale^2 x hr_channels`` output channels before the pixel shuffle); when the new
 scale is a multiple ``k`` of the old one, each of its sub-pixel channels is copied from the old
@@ -24,6 +25,7 @@ from model.archs.e2sri_arch import E2SRI, NetConfig
 log = logging.getLogger(__name__)
 
 LIFT = "mix.1"  # the sub-pixel convolution of the LR-state variant
+FREE = ("scale", "lift")  # what a warm start may change (neither adds a tensor)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,11 +60,11 @@ def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
     ckpt = checkpoint.load(source)
     old = from_mapping(NetConfig, ckpt["net"], source=str(source))
     new = net.config
-    if dataclasses.replace(old, scale=new.scale) != new:
-        differ = [f.name for f in dataclasses.fields(NetConfig)
-                  if f.name != "scale" and getattr(old, f.name) != getattr(new, f.name)]
+    if dataclasses.replace(old, scale=new.scale, lift=new.lift) != new:
+        differ = [f.name for f in dataclasses.fields(NetConfig) if f.name not in FREE
+                  and getattr(old, f.name) != getattr(new, f.name)]
         raise ValueError(f"{source}: its network differs in {', '.join(differ)}; a warm start "
-                         f"may change only the scale")
+                         f"may change only the scale and the lift filter")
     if new.scale % old.scale:
         raise ValueError(f"{source}: an x{old.scale} model cannot start an x{new.scale} one "
                          f"(the new scale must be a multiple of the old)")

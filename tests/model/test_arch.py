@@ -184,3 +184,53 @@ def test_the_network_has_a_projection_for_every_scale_datagen_renders():
     for s in SCALES:  # stride s, and a deconv of the LR grid lands exactly on the HR grid
         k, stride, pad = PROJECTION[s]
         assert stride == s and (16 - 1) * stride - 2 * pad + k == 16 * s
+
+
+def _constant_input_output(cfg: NetConfig) -> torch.Tensor:
+    """The network's output for a spatially constant input (events and flows alike), with
+    random weights and biases large enough that each sub-pixel phase differs visibly."""
+    torch.manual_seed(3)
+    net = E2SRI(cfg)
+    with torch.no_grad():
+        for p in net.parameters():
+            p.normal_(0.0, 0.15)
+        n, c = cfg.n_stacks, cfg.stack_channels
+        stacks = torch.full((1, n, c, 72, 72), 0.5)
+        flows = torch.full((1, n, 2, 72, 72), 0.25)
+        return net(stacks, stacks[:, n // 2], flows)[0, 0]
+
+
+@pytest.mark.parametrize("scale", [2, 4])
+def test_the_smooth_lift_leaves_no_grid_on_a_constant_input(scale):
+    """The invariant behind the anti-grid filter: a constant input must give a constant
+    output away from the borders (zero padding makes those differ). The plain pixel shuffle
+    gives a period-`scale` pattern there, which is what the test would catch."""
+    common = dict(scale=scale, base_channels=8, hr_channels=4, c_blocks=1, blocks=1,
+                  state="lr")
+    m = 30 * scale  # well inside: the recurrence's receptive field is ~25 LR pixels
+    plain = _constant_input_output(NetConfig(**common, lift="shuffle"))[m:-m, m:-m]
+    smooth = _constant_input_output(NetConfig(**common, lift="smooth"))[m:-m, m:-m]
+    assert plain.std() > 1e-3                       # the grid the filter is there to remove
+    assert smooth.std() < 1e-5 * max(1.0, float(smooth.abs().mean()))
+
+
+@pytest.mark.parametrize("scale", [2, 4])
+def test_the_anti_grid_taps_cancel_every_period_scale_pattern(scale):
+    from model.archs.blocks import anti_grid_taps
+    taps = anti_grid_taps(scale).double()
+    assert torch.isclose(taps.sum(), torch.tensor(1.0, dtype=torch.float64))
+    assert torch.equal(taps, taps.flip(0))          # symmetric: no half-pixel shift
+    k = torch.arange(len(taps), dtype=torch.float64)
+    for f in range(1, scale):                       # DTFT at 2 pi f / scale is zero
+        w = 2 * torch.pi * f / scale
+        re, im = (taps * torch.cos(w * k)).sum(), (taps * torch.sin(w * k)).sum()
+        assert abs(complex(re, im)) < 1e-12
+
+
+def test_a_shuffle_model_loads_into_a_smooth_one():
+    """Warm start from the shipped models: the filter adds nothing to the state dict."""
+    common = dict(base_channels=8, hr_channels=4, c_blocks=1, blocks=1, state="lr")
+    a, b = E2SRI(NetConfig(**common)), E2SRI(NetConfig(**common, lift="smooth"))
+    b.load_state_dict(a.state_dict())                # strict: same keys, same shapes
+    with pytest.raises(ValueError, match="lift"):
+        NetConfig(**common, lift="bilinear")

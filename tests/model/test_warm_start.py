@@ -60,6 +60,23 @@ def test_a_fresh_x4_net_differs_from_the_warm_one(tmp_path):
         assert not torch.allclose(new.mix[:4](features), expected, atol=1e-3)
 
 
+def test_a_shuffle_lift_model_starts_a_smooth_lift_one(tmp_path):
+    """The shipped models (plain pixel shuffle) warm-start the anti-grid variant: every
+    tensor copied, and the lift's output is the old one through the fixed filter."""
+    old, path = saved_net(tmp_path, LR_NET)
+    new = E2SRI(dataclasses.replace(LR_NET, lift="smooth"))
+    done = warm_start(new, path)
+    assert not done.fresh and not done.lifted and len(done.copied) == len(new.state_dict())
+    features = torch.randn(1, 2 * LR_NET.base_channels, 6, 5)
+    with torch.no_grad():
+        shuffled, smoothed = old.mix[:3](features), new.mix[:3](features)
+    taps = torch.tensor([0.25, 0.5, 0.25])
+    kernel = (taps[:, None] * taps[None, :]).expand(shuffled.shape[1], 1, 3, 3)
+    expected = F.conv2d(F.pad(shuffled, (1, 1, 1, 1), mode="replicate"), kernel,
+                        groups=shuffled.shape[1])
+    assert torch.allclose(smoothed, expected, atol=1e-6)
+
+
 def test_hr_state_keeps_the_scale_dependent_layers_fresh(tmp_path):
     _, path = saved_net(tmp_path, dataclasses.replace(LR_NET, state="hr"))
     done = warm_start(E2SRI(dataclasses.replace(LR_NET, state="hr", scale=4)), path)
