@@ -4,13 +4,17 @@
 #                              (its normal/specular/gloss maps are excluded by datagen)
 #   data/textures/wallpapers/  the raster images of Debian's gnome-backgrounds and
 #                              ukui-wallpapers (SVGs are skipped: datagen reads raster images)
+#   data/textures/games/       surface textures of two games' data packages: supertuxkart-data
+#                              (data/textures, data/tracks: rock, bark, foliage, walls, roads)
+#                              and flightgear-data-base (Textures/: terrain, trees, water, sky,
+#                              runways); not their UI art, kart skins or model atlases
 # Only these packages (plus scikit-image's photos and the procedural patterns) are training
 # sources. Every other image package is kept for held-out testing: this script links the
 # files these two packages own (dpkg -L), never a whole shared folder such as
 # /usr/share/backgrounds, where other packages install their images too.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-PACKAGES="ufoai-textures gnome-backgrounds ukui-wallpapers"
+PACKAGES="ufoai-textures gnome-backgrounds ukui-wallpapers supertuxkart-data flightgear-data-base"
 
 missing=""
 for p in $PACKAGES; do dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"; done
@@ -24,7 +28,8 @@ if [ -n "$missing" ]; then
   fi
 fi
 
-rm -rf data/textures.tmp && mkdir -p data/textures.tmp/ufoai data/textures.tmp/wallpapers
+rm -rf data/textures.tmp && mkdir -p data/textures.tmp/ufoai data/textures.tmp/wallpapers \
+  data/textures.tmp/games
 dpkg -L ufoai-textures | grep -E '\.pk3$' | while read -r f; do
   ln -s "$f" data/textures.tmp/ufoai/
 done
@@ -33,6 +38,16 @@ for p in gnome-backgrounds ukui-wallpapers; do
     ln -s "$f" "data/textures.tmp/wallpapers/${p}__$(basename "$f")"
   done
 done
+# one flat folder of links, each named after its package and path (unique, stable names:
+# the train/test split hashes the name)
+{ dpkg -L supertuxkart-data | grep -E '/supertuxkart/data/(textures|tracks)/'
+  dpkg -L flightgear-data-base \
+    | grep -E '/flightgear/Textures/(Terrain|Terrain\.winter|Trees|Water|Sky|Runway)/'
+} | grep -iE '\.(png|jpe?g)$' | while read -r f; do
+  name=$(echo "$f" | sed -E 's#^/usr/share/games/##; s#/#__#g')
+  ln -s "$f" "data/textures.tmp/games/$name"
+done
 rm -rf data/textures && mv data/textures.tmp data/textures
 echo "install_textures: $(ls data/textures/ufoai | wc -l) archive(s) in data/textures/ufoai," \
-     "$(ls data/textures/wallpapers | wc -l) image(s) in data/textures/wallpapers"
+     "$(ls data/textures/wallpapers | wc -l) image(s) in data/textures/wallpapers," \
+     "$(ls data/textures/games | wc -l) image(s) in data/textures/games"
