@@ -8,7 +8,10 @@ so fast-firing pixels cannot wipe a channel; the next channel starts where it st
 
 Stacks are built either forward from a start index or backward to an end index (a sample's
 central stack ends at a frame). Consecutive stacks may overlap by ``L`` events.
-No per-event Python loop: each channel is a handful of numpy calls over its events.
+Two compiled (numba) passes over the stack's own events: one counts writes per pixel to find
+where each channel closes, one paints the channels in time order (so the newest event
+wins without a sort). The rest of the stream is never read, so a stack costs the same
+however long the recording is.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+import numba
 import numpy as np
 
 from esim_lite.core.events import Events
@@ -65,30 +69,75 @@ class StackConfig:
                             / channels))
 
 
-def _capped_length(pix: np.ndarray, cap: int) -> int:
-    """Largest n such that no value occurs more than ``cap`` times in ``pix[:n]``."""
-    if len(pix) <= cap:
-        return len(pix)
-    order = np.argsort(pix, kind="stable")
-    sorted_pix = pix[order]
-    starts = np.flatnonzero(np.r_[True, sorted_pix[1:] != sorted_pix[:-1]])
-    group = np.cumsum(np.r_[False, sorted_pix[1:] != sorted_pix[:-1]])
-    occurrence = np.empty(len(pix), np.int64)
-    occurrence[order] = np.arange(len(pix)) - starts[group]
-    over = np.flatnonzero(occurrence >= cap)
-    return int(over[0]) if len(over) else len(pix)
+@numba.njit(cache=True, nogil=True)
+def _pixel(x, y, i, h, w):
+    """Flat index of event ``i``; raises for an event outside the sensor (a wrong
+    ``sensor_hw`` would otherwise write outside the canvas)."""
+    if x[i] < 0 or x[i] >= w or y[i] < 0 or y[i] >= h:
+        raise ValueError("event coordinates outside sensor_hw")
+    return np.int64(y[i]) * w + x[i]
+
+
+@numba.njit(cache=True, nogil=True)
+def _capped_walk(x, y, h, w, first, step, count, cap, writes):
+    """How many of the ``count`` events from index ``first`` in steps of ``step`` (+1
+    forward, -1 backward) come before a pixel's (cap+1)-th write. ``writes`` int32[H*W] is
+    zero on entry and on return (only the pixels touched are reset)."""
+    taken = 0
+    while taken < count:
+        q = _pixel(x, y, first + step * taken, h, w)
+        if writes[q] == cap:
+            break
+        writes[q] += 1
+        taken += 1
+    for k in range(taken):
+        writes[_pixel(x, y, first + step * k, h, w)] = 0
+    return taken
+
+
+@numba.njit(cache=True, nogil=True)
+def _sbn_bounds(x, y, h, w, pos, forward, ne, cap, channels):
+    """int64[channels, 2] event ranges of the channels of an SBN stack starting (forward)
+    or ending (backward) at ``pos`` (already clipped to ``[0, N]``), oldest first."""
+    n = len(x)
+    writes = np.zeros(h * w, np.int32)
+    bounds = np.empty((channels, 2), np.int64)
+    for k in range(channels):
+        if forward:
+            taken = _capped_walk(x, y, h, w, pos, 1, min(ne, n - pos), cap, writes)
+            bounds[k, 0], bounds[k, 1] = pos, pos + taken
+            pos += taken
+        else:
+            taken = _capped_walk(x, y, h, w, pos - 1, -1, min(ne, pos), cap, writes)
+            bounds[channels - 1 - k, 0], bounds[channels - 1 - k, 1] = pos - taken, pos
+            pos -= taken
+    return bounds
+
+
+@numba.njit(cache=True, nogil=True)
+def _paint(x, y, p, h, w, bounds, image):
+    """Paints channel ``k`` of ``image`` uint8[c, H*W] (all 128 on entry) with events
+    ``bounds[k]`` in time order, so each pixel keeps its newest event."""
+    for k in range(bounds.shape[0]):
+        for i in range(bounds[k, 0], bounds[k, 1]):
+            image[k, _pixel(x, y, i, h, w)] = ON if p[i] > 0 else OFF
+
+
+def _painted(events: Events, bounds: np.ndarray) -> np.ndarray:
+    """uint8[c, H, W]: channel ``k`` painted with events ``bounds[k]`` (int64[c, 2])."""
+    h, w = events.sensor_hw
+    image = np.full((len(bounds), h * w), BACKGROUND, np.uint8)
+    _paint(events.x, events.y, events.p, h, w, bounds, image)
+    return image.reshape(len(bounds), h, w)
 
 
 def paint_channel(x: np.ndarray, y: np.ndarray, p: np.ndarray, hw: tuple[int, int]
                   ) -> np.ndarray:
     """uint8[H, W] canvas of 128 with each pixel's newest event: 255 ON, 0 OFF."""
     h, w = hw
-    canvas = np.full(h * w, BACKGROUND, np.uint8)
-    if len(x):
-        pix = y.astype(np.int64) * w + x
-        last = len(pix) - 1 - np.unique(pix[::-1], return_index=True)[1]
-        canvas[pix[last]] = np.where(p[last] > 0, ON, OFF)
-    return canvas.reshape(h, w)
+    image = np.full((1, h * w), BACKGROUND, np.uint8)
+    _paint(x, y, p, h, w, np.array([[0, len(x)]], np.int64), image)
+    return image.reshape(h, w)
 
 
 @dataclass(frozen=True, eq=False)
@@ -110,25 +159,11 @@ def sbn_stack(events: Events, config: StackConfig, *, start: int | None = None,
     """
     if (start is None) == (end is None):
         raise ValueError("give exactly one of start= or end=")
-    pix = events.y.astype(np.int64) * events.sensor_hw[1] + events.x
-    ne, cap, n = config.events_per_channel, config.overwrite_cap, len(events)
-    bounds = []
-    if start is not None:
-        s = min(max(start, 0), n)
-        for _ in range(config.channels):
-            e = s + _capped_length(pix[s:min(s + ne, n)], cap)
-            bounds.append((s, e))
-            s = e
-    else:
-        e = min(max(end, 0), n)
-        for _ in range(config.channels):
-            s = e - _capped_length(pix[max(e - ne, 0):e][::-1], cap)
-            bounds.append((s, e))
-            e = s
-        bounds.reverse()
-    image = np.stack([paint_channel(events.x[a:b], events.y[a:b], events.p[a:b],
-                                    events.sensor_hw) for a, b in bounds])
-    return Stack(image, bounds[0][0], bounds[-1][1], np.array(bounds, np.int64))
+    h, w = events.sensor_hw
+    pos = min(max(start if start is not None else end, 0), len(events))
+    bounds = _sbn_bounds(events.x, events.y, h, w, pos, start is not None,
+                         config.events_per_channel, config.overwrite_cap, config.channels)
+    return Stack(_painted(events, bounds), int(bounds[0, 0]), int(bounds[-1, 1]), bounds)
 
 
 def sbt_stack(events: Events, config: StackConfig, *, t_end_ns: int) -> Stack:
@@ -136,10 +171,8 @@ def sbt_stack(events: Events, config: StackConfig, *, t_end_ns: int) -> Stack:
     width = int(round(config.channel_ms * 1e6))
     edges = t_end_ns - width * np.arange(config.channels, -1, -1)
     idx = np.searchsorted(events.t_ns, edges, side="right")
-    bounds = np.stack([idx[:-1], idx[1:]], axis=1)
-    image = np.stack([paint_channel(events.x[a:b], events.y[a:b], events.p[a:b],
-                                    events.sensor_hw) for a, b in bounds])
-    return Stack(image, int(idx[0]), int(idx[-1]), bounds.astype(np.int64))
+    bounds = np.stack([idx[:-1], idx[1:]], axis=1).astype(np.int64)
+    return Stack(_painted(events, bounds), int(idx[0]), int(idx[-1]), bounds)
 
 
 def stack_sequence(events: Events, config: StackConfig, anchor: int, n_stacks: int
