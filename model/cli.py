@@ -97,6 +97,16 @@ def _engine_argument(p: argparse.ArgumentParser) -> None:
                    "'fast' extra; exported once into ~/.cache/e2sr, see docs/evaluation.md)")
 
 
+def _stack_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--events-per-stack", type=int,
+                   help="events per stack (default: chosen by --stack-rule)")
+    p.add_argument("--stack-rule", choices=["auto", "active", "area"], default="auto",
+                   help="how events per stack scale from the model's: active (by the pixels "
+                   "active in the recording's first second), area (by sensor area, the "
+                   "paper's rule), auto (default: area for our shards, active for other "
+                   "recordings); see docs/evaluation.md")
+
+
 def reconstruct_main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="reconstruct", description="Super-resolved images from "
                                 "an event recording (shard, HDF5, ECD text, AEDAT4, raw).")
@@ -116,8 +126,7 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
     p.add_argument("--rate", type=float, help="outputs per second with --at rate")
     p.add_argument("--every", type=int, help="events between outputs with --at events "
                    "(default: one stack)")
-    p.add_argument("--events-per-stack", type=int,
-                   help="default: the model's, scaled by the sensor area")
+    _stack_arguments(p)
     p.add_argument("--limit", type=int, help="stop after this many frames")
     p.add_argument("--mp4", action="store_true", help="also write video.mp4")
     p.add_argument("--temporal", type=float, metavar="WEIGHT",
@@ -131,12 +140,16 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
         from datagen.recording import open_recording
         from model.inference.pretrained import resolve
         from model.inference.reconstruct import Reconstructor, plan_outputs, reconstruct
+        from model.inference.stack_size import measure_activity, resolve_rule
 
         _check_out_folder(args.out)
         ckpt = resolve(args.checkpoint, args.scale)
         rec = open_recording(args.input, _sensor(args.sensor_size), args.sequence)
+        active = args.events_per_stack is None and \
+            resolve_rule(args.stack_rule, rec.kind) == "active"
         model = Reconstructor.load(ckpt, rec.sensor_hw, args.mode, args.first_pass,
-                                   args.events_per_stack, args.device, args.engine)
+                                   args.events_per_stack, args.device, args.engine,
+                                   measure_activity(rec) if active else None)
         plan = plan_outputs(rec, model.stacks, args.at, args.rate, args.every)
         result = reconstruct(rec, model, args.out, plan, args.mp4, not args.no_progress,
                              args.limit, temporal=args.temporal)
@@ -149,6 +162,7 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
           f" sensor, {model.stacks.events_per_stack} events per stack, engine "
           f"{model.engine_name}); ms per frame: "
           + ", ".join(f"{k} {v:.1f}" for k, v in per.items()))
+    print(f"events per stack: {model.stack_choice.describe()}")
     return 0
 
 
@@ -177,6 +191,10 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-baselines", action="store_true")
     p.add_argument("--no-temporal", action="store_true", help="skip the ours+tc post-process")
     p.add_argument("--first-pass", help="main model checkpoint for a Duo-Pass model")
+    _stack_arguments(p)
+    p.add_argument("--exposure-average", action="store_true",
+                   help="average our outputs inside each APS frame's exposure window "
+                   "(AEDAT4 stores it) before scoring")
     _engine_argument(p)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
@@ -188,7 +206,9 @@ def evaluate_main(argv: list[str] | None = None) -> int:
         options = EvalOptions(normalize=args.normalize, every=args.every,
                               max_frames=args.max_frames,
                               baselines=() if args.no_baselines else BASELINES,
-                              temporal=not args.no_temporal)
+                              temporal=not args.no_temporal, stack_rule=args.stack_rule,
+                              events_per_stack=args.events_per_stack,
+                              exposure_average=args.exposure_average)
         rows = evaluate(resolve(args.checkpoint, args.scale), args.out, args.data,
                         args.recording, options, args.first_pass, args.split,
                         _sensor(args.sensor_size), args.engine)
@@ -200,7 +220,8 @@ def evaluate_main(argv: list[str] | None = None) -> int:
             print(f"{r['protocol']:>2} {r['method']:<13} PSNR {r['psnr']:6.2f}  SSIM "
                   f"{r['ssim']:.3f}  MSE {r['mse']:.4f}  LPIPS {r.get('lpips', float('nan')):.3f}"
                   f"  E_warp {r['ewarp']:.2f}")
-    print(f"tables: {args.out}/metrics.md, {args.out}/metrics.csv; figure: {args.out}/figure.png")
+    print(f"tables: {args.out}/metrics.md (with the events per stack of each sequence), "
+          f"{args.out}/metrics.csv; figure: {args.out}/figure.png")
     return 0
 
 

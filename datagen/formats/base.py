@@ -26,6 +26,8 @@ class Recording:
         kind: ``shard``, ``hdf5``, ``evreal``, ``text``, ``aedat4`` or ``raw``.
         sensor_hw: (H, W) of the event sensor.
         frames: APS frames (linear intensity in [0, 1], sorted by time), or None.
+        exposures_ns: int64[T, 2] each frame's exposure window (start, end) in ns, in the
+            order of ``frames``, when the file stores it (AEDAT4), else None.
     """
 
     path: Path
@@ -33,6 +35,16 @@ class Recording:
     sensor_hw: tuple[int, int]
     frames: Frames | None
     _chunks: Callable[[int], Iterator[Events]]
+    exposures_ns: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.exposures_ns is None:
+            return
+        n = 0 if self.frames is None else len(self.frames)
+        if self.exposures_ns.dtype != np.int64 or self.exposures_ns.shape != (n, 2):
+            raise ValueError(f"{self.path}: exposure windows must be int64[{n}, 2] (one per "
+                             f"frame), got {self.exposures_ns.dtype}"
+                             f"{list(self.exposures_ns.shape)}")
 
     def events(self, chunk: int = READ_CHUNK_EVENTS) -> Iterator[Events]:
         """Validated chunks of about ``chunk`` events, in time order.
@@ -143,3 +155,22 @@ def sorted_frames(images: list[np.ndarray], t_ns: list[int], path: Path) -> Fram
         raise ValueError(f"{path}: APS frames of different sizes {sorted(shapes)}")
     order = np.argsort(np.asarray(t_ns, np.int64), kind="stable")
     return Frames(np.stack([images[i] for i in order]), np.asarray(t_ns, np.int64)[order])
+
+
+def sorted_exposures(t_ns: list[int], start_ns: list[int], end_ns: list[int], path: Path
+                     ) -> np.ndarray | None:
+    """int64[T, 2] exposure windows (start, end) of frames stamped ``t_ns``, in the order
+    :func:`sorted_frames` puts those frames; None without frames.
+
+    Raises:
+        ValueError: naming ``path`` and the frame, when an exposure ends before it starts.
+    """
+    if not t_ns:
+        return None
+    order = np.argsort(np.asarray(t_ns, np.int64), kind="stable")
+    windows = np.stack([np.asarray(start_ns, np.int64), np.asarray(end_ns, np.int64)], 1)
+    bad = np.flatnonzero(windows[:, 1] < windows[:, 0])
+    if len(bad):
+        raise ValueError(f"{path}: APS frame {bad[0]} has an exposure ending before it starts "
+                         f"({windows[bad[0], 0]} > {windows[bad[0], 1]} ns)")
+    return windows[order]

@@ -8,7 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-from datagen.formats.base import Recording, checked_events, gray_image, sorted_frames
+from datagen.formats.base import (
+    Recording,
+    checked_events,
+    gray_image,
+    sorted_exposures,
+    sorted_frames,
+)
 from esim_lite.core.events import Events
 
 
@@ -21,6 +27,8 @@ def _faery(path: Path):
 
 
 def open_aedat4(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
+    """Events and APS frames; each frame's exposure window (its ``exposure_start_t`` and
+    ``exposure_end_t``) is kept in ``Recording.exposures_ns`` (None when a frame lacks it)."""
     faery = _faery(path)
     try:
         with faery.aedat.Decoder(path) as dec:
@@ -29,12 +37,14 @@ def open_aedat4(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
             if not ev_tracks:
                 raise ValueError(f"{path}: no event track")
             w, h = ev_tracks[0].dimensions
-            images, times = [], []
+            images, times, starts, ends = [], [], [], []
             if any(t.data_type == "frame" for t in tracks):
                 for track, packet in dec:
                     if track.data_type == "frame":
                         images.append(gray_image(packet.pixels))
                         times.append(int(packet.t) * 1000)
+                        starts.append(packet.exposure_start_t)
+                        ends.append(packet.exposure_end_t)
     except (OSError, RuntimeError) as exc:
         raise ValueError(f"{path}: not a readable AEDAT4 file ({exc})") from exc
     hw = sensor_hw or (h, w)
@@ -48,7 +58,11 @@ def open_aedat4(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
                                          packet["t"].astype(np.int64) * 1000, packet["on"], hw,
                                          path)
 
-    return Recording(path, "aedat4", hw, sorted_frames(images, times, path), chunks)
+    exposures = None
+    if all(v is not None for v in starts + ends):
+        exposures = sorted_exposures(times, [int(v) * 1000 for v in starts],
+                                     [int(v) * 1000 for v in ends], path)
+    return Recording(path, "aedat4", hw, sorted_frames(images, times, path), chunks, exposures)
 
 
 def open_raw(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:

@@ -19,6 +19,12 @@ trained to predict it, and the complementary filter, anchored to APS frames) are
 their output stretched by its 1st..99th percentiles; the target is never changed. ``none``
 compares raw values.
 
+Scoring real recordings: events per stack are chosen per recording
+(:mod:`model.inference.stack_size`; the active-pixel rule by default for real files, the
+area rule for our shards); with ``exposure_average`` our outputs inside each APS frame's
+exposure window are averaged before scoring (:mod:`model.inference.exposure`; the
+baselines stay at the frame's timestamp).
+
 Temporal stability (the paper's Table 6): ``E_warp`` between consecutive outputs with the
 flow of the ground-truth frames; ``ours+tc`` is our outputs after the blind post-process
 (both in :mod:`model.inference.temporal`).
@@ -47,7 +53,9 @@ from model import checkpoint
 from model.archs.e2sri_arch import mode_of
 from model.data.dataset import index_samples
 from model.inference.baselines import EventFilter, FilterConfig, upsample
+from model.inference.exposure import boundary_times, exposure_average
 from model.inference.reconstruct import OutputPlan, Reconstructor, output_times
+from model.inference.stack_size import Rule, StackChoice, measure_activity, resolve_rule
 from model.inference.temporal import reference_motion, temporally_consistent, warp_error
 from model.losses.lpips import LPIPS
 from model.metrics.image import mse, psnr, ssim
@@ -60,7 +68,9 @@ BASELINES = ("hf", "direct", "complementary")
 class EvalOptions:
     """``normalize``: see the module doc; ``every``: evaluate every k-th eligible frame;
     ``max_frames`` per sequence; ``tc_weight``: weight of the warped previous output in the
-    temporal post-process."""
+    temporal post-process; ``stack_rule`` and ``events_per_stack`` choose the stacks
+    (:mod:`model.inference.stack_size`); ``exposure_average``: average our outputs over
+    each APS frame's exposure window where the file stores it."""
 
     normalize: Literal["affine", "minmax", "evreal", "none"] = "affine"
     every: int = 1
@@ -69,6 +79,9 @@ class EvalOptions:
     temporal: bool = True
     tc_weight: float = 0.6
     filters: FilterConfig = field(default_factory=FilterConfig)
+    stack_rule: Rule = "auto"
+    events_per_stack: int | None = None
+    exposure_average: bool = False
 
 
 #: Methods whose output has an absolute intensity (compared as they are under ``evreal``).
@@ -106,13 +119,42 @@ def frame_metrics(pred: np.ndarray, gt: np.ndarray, lpips_net: LPIPS | None) -> 
 
 @dataclass
 class SequenceOutputs:
-    """Every method's images at the evaluated frames, with the targets."""
+    """Every method's images at the evaluated frames, with the targets; ``stack_choice``:
+    the events per stack used; ``averaged``: per frame, how many of our outputs were
+    averaged over its exposure (empty when not averaging)."""
 
     name: str
     images: dict[str, list[np.ndarray]]
     lr_targets: list[np.ndarray]
     hr_targets: list[np.ndarray] | None
     event_images: list[np.ndarray]
+    stack_choice: StackChoice | None = None
+    averaged: list[int] = field(default_factory=list)
+
+
+class ModelPool:
+    """A checkpoint read once; its network (and engine) prepared once per sensor size, with
+    the events per stack chosen for each recording (``options.stack_rule``)."""
+
+    def __init__(self, ckpt: str | Path, options: EvalOptions, first_pass: str | None = None,
+                 engine: str = "torch") -> None:
+        self.ckpt, self.options, self.first_pass, self.engine = str(ckpt), options, \
+            first_pass, engine
+        self.state = checkpoint.load(ckpt)
+        self.config = checkpoint.config_of(self.state, self.ckpt)
+        self._by_hw: dict[tuple[int, int], Reconstructor] = {}
+
+    def for_recording(self, rec: Recording) -> Reconstructor:
+        hw = rec.sensor_hw
+        if hw not in self._by_hw:
+            self._by_hw[hw] = Reconstructor.from_state(
+                self.state, self.ckpt, hw, mode_of(self.config.model), self.first_pass,
+                engine=self.engine)
+        given = self.options.events_per_stack
+        active = given is None and resolve_rule(self.options.stack_rule, rec.kind) == "active"
+        model = self._by_hw[hw].with_stacks(given, measure_activity(rec) if active else None)
+        log.info("%s: %s events per stack", rec.path, model.stack_choice.describe())
+        return model
 
 
 def run_sequence(recording: Recording, model: Reconstructor, frame_ids: list[int],
@@ -122,7 +164,8 @@ def run_sequence(recording: Recording, model: Reconstructor, frame_ids: list[int
     frames = recording.frames
     filters = {m: EventFilter(m, recording.sensor_hw, options.filters) for m in options.baselines}
     out = SequenceOutputs(name, {m: [] for m in ("ours", *options.baselines)}, [], None
-                          if hr_frames is None else [], [])
+                          if hr_frames is None else [], [], model.stack_choice)
+    exposures = recording.exposures_ns if options.exposure_average else None
     chunk_size = READ_CHUNK_EVENTS
     window = model.event_window(recording.events(chunk_size), recording.sensor_hw, chunk_size)
     fed, next_frame = 0, 0
@@ -133,6 +176,9 @@ def run_sequence(recording: Recording, model: Reconstructor, frame_ids: list[int
         anchor = given.anchor
         aps = frames.intensity[k] if model.net.config.central == "aps" else None
         ours, _ = model.run(given.stacks, aps)
+        if exposures is not None:
+            ours, n = _over_exposure(model, window, t, ours, aps, exposures[k])
+            out.averaged.append(n)
         # baselines see every event up to t and the APS frames strictly before t, in order
         while next_frame < len(frames) and frames.t_ns[next_frame] < t:
             tf = int(frames.t_ns[next_frame])
@@ -148,13 +194,27 @@ def run_sequence(recording: Recording, model: Reconstructor, frame_ids: list[int
             f.add_events(chunk)
             out.images[m].append(f.image(t))  # at sensor size; upsampled for the HR protocol
         fed = window.pin = anchor
-        window.forget(min(fed, given.first))
+        keep = min(fed, given.first)
+        if exposures is not None and pos + 1 < len(frame_ids):  # the next exposure's start
+            keep = min(keep, model.first_needed(window, int(exposures[frame_ids[pos + 1], 0])))
+        window.forget(keep)
         out.images["ours"].append(ours)
         out.lr_targets.append(frames.intensity[k])
         if hr_frames is not None:
             out.hr_targets.append(hr_frames[pos])
         out.event_images.append(event_image(given.events.slice(*given.central)))
     return out
+
+
+def _over_exposure(model: Reconstructor, window, t: int, at_t: np.ndarray,
+                   aps: np.ndarray | None, exposure: np.ndarray) -> tuple[np.ndarray, int]:
+    """Our outputs at the stack boundaries inside ``exposure`` and at ``t`` (``at_t``,
+    already made), averaged over the window (:func:`exposure_average`)."""
+    start, end = int(exposure[0]), int(exposure[1])
+    times = sorted(set(boundary_times(window, model.stacks.events_per_stack, start, end)) | {t})
+    images = [at_t if u == t else model.run(model.stacks_at(window, u).stacks, aps)[0]
+              for u in times]
+    return exposure_average(times, images, (start, end))
 
 
 def unscored_sequence(recording: Recording, model: Reconstructor, options: EvalOptions,
@@ -164,7 +224,7 @@ def unscored_sequence(recording: Recording, model: Reconstructor, options: EvalO
     chunk_size = READ_CHUNK_EVENTS
     window = model.event_window(recording.events(chunk_size), recording.sensor_hw, chunk_size)
     hf = EventFilter("hf", recording.sensor_hw, options.filters)
-    out = SequenceOutputs(name, {"ours": [], "hf": []}, [], None, [])
+    out = SequenceOutputs(name, {"ours": [], "hf": []}, [], None, [], model.stack_choice)
     fed = window.pin = 0
     plan = OutputPlan("events", model.stacks.events_per_stack)
     for t, _ in output_times(plan, recording, window):
@@ -183,6 +243,16 @@ def unscored_sequence(recording: Recording, model: Reconstructor, options: EvalO
                          f"({model.net.config.n_stacks} stacks of "
                          f"{model.stacks.events_per_stack})")
     return out
+
+
+def recording_outputs(rec: Recording, model: Reconstructor, options: EvalOptions,
+                      name: str) -> SequenceOutputs:
+    """A real recording: scored against its APS frames (all but the first, which has no
+    events before it) when it has them, else outputs for the figure only."""
+    if rec.frames is None:
+        return unscored_sequence(rec, model, options, name)
+    ids = list(range(1, len(rec.frames)))[::options.every][:options.max_frames]
+    return run_sequence(rec, model, ids, None, options, name)
 
 
 def _down(img: np.ndarray, scale: int) -> np.ndarray:
@@ -235,17 +305,8 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
     options = options or EvalOptions()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    state = checkpoint.load(ckpt)
-    cfg = checkpoint.config_of(state, str(ckpt))
-    mode = mode_of(cfg.model)
-    models: dict[tuple[int, int], Reconstructor] = {}
-
-    def model_for(hw: tuple[int, int]) -> Reconstructor:  # the checkpoint is read once
-        if hw not in models:
-            models[hw] = Reconstructor.from_state(state, str(ckpt), hw, mode, first_pass,
-                                                  engine=engine)
-        return models[hw]
-
+    pool = ModelPool(ckpt, options, first_pass, engine)
+    cfg = pool.config
     lpips_net = LPIPS()
     sequences: list[SequenceOutputs] = []
     if data is not None:
@@ -262,25 +323,20 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
         for (path, seq), frames in sorted(by_seq.items()):
             frames = frames[::options.every][:options.max_frames]
             rec = open_recording(path, sequence=seq)
-            model = model_for(rec.sensor_hw)
+            model = pool.for_recording(rec)
             with ShardReader(path) as reader:
                 hr = [reader.frame(seq, hr_camera(cfg.model.scale), k) for k in frames]
             sequences.append(run_sequence(rec, model, frames, hr, options,
                                           f"{Path(path).name}/{seq}"))
     for path in recordings or []:
         rec = open_recording(path, sensor_hw)
-        model = model_for(rec.sensor_hw)
-        if rec.frames is None:  # nothing to score against: shown in the figure only
-            sequences.append(unscored_sequence(rec, model, options, _short(path)))
-            continue
-        ids = list(range(1, len(rec.frames)))[::options.every][:options.max_frames]
-        sequences.append(run_sequence(rec, model, ids, None, options, _short(path)))
+        sequences.append(recording_outputs(rec, pool.for_recording(rec), options, _short(path)))
     if not sequences:
         raise ValueError("nothing to evaluate: give --data and/or --recording")
     rows = [r for s in sequences if s.lr_targets
             for r in score(s, cfg.model.scale, options, lpips_net)]
     rows += average_rows(rows)
-    write_tables(rows, out, options)
+    write_tables(rows, out, options, run_notes(sequences, options))
     write_figure(sequences, out / "figure.png", cfg.model.scale)
     return rows
 
@@ -306,7 +362,25 @@ def average_rows(rows: list[dict]) -> list[dict]:
     return out
 
 
-def write_tables(rows: list[dict], out: Path, options: EvalOptions) -> None:
+def run_notes(sequences: list[SequenceOutputs], options: EvalOptions) -> list[str]:
+    """Markdown lines saying, per sequence, the events per stack and their rule, and whether
+    (and over how many outputs) ours was averaged over the APS exposures."""
+    lines = []
+    for seq in sequences:
+        if seq.stack_choice is not None:
+            line = f"- {seq.name}: {seq.stack_choice.describe()} events per stack"
+            if seq.averaged:
+                line += (f"; ours averaged over each frame's exposure: {min(seq.averaged)}-"
+                         f"{max(seq.averaged)} output(s) per frame (mean "
+                         f"{np.mean(seq.averaged):.2f})")
+            lines.append(line)
+    if options.exposure_average and not any(s.averaged for s in sequences):
+        lines.append("- exposure averaging asked for, but no file stores exposure windows")
+    return lines
+
+
+def write_tables(rows: list[dict], out: Path, options: EvalOptions,
+                 notes: list[str] | None = None) -> None:
     cols = ["sequence", "protocol", "method", "frames", "psnr", "ssim", "mse", "lpips", "ewarp"]
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
@@ -316,6 +390,8 @@ def write_tables(rows: list[dict], out: Path, options: EvalOptions) -> None:
     write_text(out / "metrics.csv", buf.getvalue())
     lines = [f"Normalisation: {options.normalize}. PSNR dB, SSIM, MSE, LPIPS (alex), "
              f"E_warp x1e-3 (lower is better except PSNR and SSIM).", ""]
+    if notes:
+        lines += ["Events per stack:", "", *notes, ""]
     for proto in ("hr", "lr"):
         sel = [r for r in rows if r["protocol"] == proto]
         if not sel:

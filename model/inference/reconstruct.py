@@ -7,8 +7,9 @@ stack is computed, and the network runs on the whole sensor (it is fully convolu
 so any sensor size works). Events stream through a sliding window: memory does not grow
 with the length of the recording.
 
-The number of events per stack scales with the sensor area from what the model was trained
-with (the paper: ~3,000 per stack at 128x128 becomes ~7,900 at 240x180), unless given.
+The number of events per stack (:mod:`model.inference.stack_size`): given, else scaled from
+what the model was trained with by the recording's active pixels (real recordings) or by
+the sensor area (the paper: ~3,000 per stack at 128x128 becomes ~7,900 at 240x180).
 """
 
 from __future__ import annotations
@@ -34,6 +35,7 @@ from model import checkpoint
 from model.archs.e2sri_arch import CENTRAL_OF_MODE, E2SRI, central_input
 from model.data.classical_flow import stack_flows
 from model.inference.engines import Forward, load_engine
+from model.inference.stack_size import Activity, StackChoice, choose_stack
 from model.inference.temporal import consistency_step
 
 log = logging.getLogger(__name__)
@@ -120,30 +122,35 @@ class Reconstructor:
     """A loaded network (plus its first pass for Duo-Pass) and how to stack events for it.
 
     ``engine`` runs the network's forward pass (:mod:`model.inference.engines`; None: the
-    network in eager PyTorch); ``first_pass`` is the first pass's, on the same engine."""
+    network in eager PyTorch); ``first_pass`` is the first pass's, on the same engine;
+    ``stack_choice``: how ``stacks.events_per_channel`` was chosen (None: set by hand)."""
 
     net: E2SRI
     first_pass: Forward | None
     stacks: StackConfig
     device: torch.device
     engine: Forward | None = None
+    stack_choice: StackChoice | None = None
 
     @classmethod
     def load(cls, ckpt: str | Path, sensor_hw: tuple[int, int], mode: Mode = "main",
              first_pass: str | Path | None = None, events_per_stack: int | None = None,
-             device: str | None = None, engine: str = "torch") -> Reconstructor:
+             device: str | None = None, engine: str = "torch",
+             activity: Activity | None = None) -> Reconstructor:
         """Read ``ckpt`` and prepare it for a ``sensor_hw`` sensor (see :meth:`from_state`)."""
         return cls.from_state(checkpoint.load(ckpt), str(ckpt), sensor_hw, mode, first_pass,
-                              events_per_stack, device, engine)
+                              events_per_stack, device, engine, activity)
 
     @classmethod
     def from_state(cls, state: dict, ckpt: str, sensor_hw: tuple[int, int],
                    mode: Mode = "main", first_pass: str | Path | None = None,
                    events_per_stack: int | None = None, device: str | None = None,
-                   engine: str = "torch") -> Reconstructor:
+                   engine: str = "torch", activity: Activity | None = None) -> Reconstructor:
         """From an already loaded checkpoint ``state`` (``ckpt`` names it in errors);
         ``engine``: ``torch``, ``onnxruntime``, ``openvino`` or ``auto``
-        (:func:`model.inference.engines.choose`)."""
+        (:func:`model.inference.engines.choose`). Events per stack: ``events_per_stack``,
+        else by the recording's ``activity`` (active-pixel rule), else by sensor area
+        (:func:`model.inference.stack_size.choose_stack`)."""
         dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         net = checkpoint.model_from(state, dev, ckpt)
         if net.config.central != CENTRAL_OF_MODE[mode]:
@@ -161,14 +168,26 @@ class Reconstructor:
         trained_hw = tuple(state.get("sensor_hw") or checkpoint.TRAINED_SENSOR_HW)
         if "sensor_hw" not in state:
             log.warning("%s records no training sensor size; assuming the paper's %dx%d "
-                        "(stack sizes scale by area from it)", ckpt, trained_hw[1], trained_hw[0])
-        if events_per_stack is None:
-            area = sensor_hw[0] * sensor_hw[1] / (trained_hw[0] * trained_hw[1])
-            per_channel = max(1, round(trained.events_per_channel * area))
-        else:
-            per_channel = max(1, events_per_stack // trained.channels)
-        return cls(net, first, replace(trained, events_per_channel=per_channel), dev,
-                   load_engine(engine, net, dev, sensor_hw))
+                        "(stack sizes scale from it)", ckpt, trained_hw[1], trained_hw[0])
+        choice = choose_stack(trained.events_per_channel, trained.channels, trained_hw,
+                              sensor_hw, events_per_stack, activity)
+        return cls(net, first, replace(trained, events_per_channel=choice.events_per_channel),
+                   dev, load_engine(engine, net, dev, sensor_hw), choice)
+
+    def with_stacks(self, given: int | None = None, activity: Activity | None = None
+                    ) -> Reconstructor:
+        """The same network (and engine) with events per stack chosen afresh from the
+        model's trained ones (:func:`model.inference.stack_size.choose_stack`): for another
+        recording of the same sensor size."""
+        base = self.stack_choice
+        if base is None:
+            raise ValueError("this Reconstructor's stacks were set by hand; load it with "
+                             "Reconstructor.load or from_state to rechoose them")
+        choice = choose_stack(base.trained, base.channels, base.trained_hw, base.sensor_hw,
+                              given, activity)
+        return replace(self, stacks=replace(self.stacks,
+                                            events_per_channel=choice.events_per_channel),
+                       stack_choice=choice)
 
     @property
     def engine_name(self) -> str:
@@ -184,19 +203,24 @@ class Reconstructor:
             return EventWindow(chunks, hw, keep_ns=(n + 1) * stack_span_ns(self.stacks))
         return EventWindow(chunks, hw, keep=n * self.stacks.events_per_stack + 2 * chunk_size)
 
+    def first_needed(self, window: EventWindow, t_ns: int) -> int:
+        """Global index of the first event the stacks of an output at ``t_ns`` read."""
+        cfg, half = self.stacks, self.net.config.n_stacks // 2
+        if cfg.method == "sbt":
+            return window.index_after(t_ns - (half + 1) * stack_span_ns(cfg))
+        return window.index_after(t_ns) - (half + 1) * cfg.events_per_stack
+
     def stacks_at(self, window: EventWindow, t_ns: int) -> StackedEvents:
         """The network's stacks for an output at ``t_ns``: the central one ends at the last
         event at or before ``t_ns`` (SBN) or at ``t_ns`` (SBT)."""
         cfg, n = self.stacks, self.net.config.n_stacks
         half = n // 2
         anchor = window.index_after(t_ns)
+        lo = self.first_needed(window, t_ns)
         if cfg.method == "sbt":
-            span = stack_span_ns(cfg)
-            lo = window.index_after(t_ns - (half + 1) * span)
-            hi = window.index_after(t_ns + half * span)
+            hi = window.index_after(t_ns + half * stack_span_ns(cfg))
         else:
-            per = cfg.events_per_stack
-            lo, hi = anchor - (half + 1) * per, anchor + half * per
+            hi = anchor + half * cfg.events_per_stack
         events, first = window.slice(lo, hi)
         built = stacks_around(events, cfg, n, anchor - first, t_ns)
         centre = built[half]
