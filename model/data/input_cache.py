@@ -119,9 +119,25 @@ def _shard_arrays(path: Path, refs: list, spec: CacheSpec) -> dict[str, np.ndarr
             "lr": np.stack(lr), "hr": np.stack(hr), "keys": keys}
 
 
+def _ref_key(ref) -> str:
+    return f"{ref.sequence}/{ref.frame}"
+
+
+def covers(folder: Path, refs: list) -> bool:
+    """Whether the complete cache folder ``folder`` holds every sample of ``refs``. The
+    samples a run asks for depend on the whole dataset (validation keeps frames spread
+    over all held-out sequences), so a shard cached for one folder of links may lack
+    samples another folder over the same shard needs."""
+    if not (folder / "keys.json").is_file():
+        return False
+    keys = set(json.loads((folder / "keys.json").read_text()))
+    return all(_ref_key(r) in keys for r in refs)
+
+
 def build_shard(folder: Path, path: Path, refs: list, spec: CacheSpec) -> Path:
-    """Write one shard's cache folder atomically (skipped when it already exists)."""
-    if (folder / "keys.json").is_file():
+    """Write one shard's cache folder atomically (skipped when it already holds every
+    sample of ``refs``; otherwise replaced by one that holds ``refs``)."""
+    if covers(folder, refs):
         return folder
     tmp = folder.with_name(f"{folder.name}.tmp-{os.getpid()}")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -131,13 +147,17 @@ def build_shard(folder: Path, path: Path, refs: list, spec: CacheSpec) -> Path:
         for name in ("stacks", "flows", "lr", "hr", "rows"):
             np.save(tmp / f"{name}.npy", arrays[name])
         (tmp / "keys.json").write_text(json.dumps(arrays["keys"]))
+        old = folder.with_name(f"{folder.name}.old-{os.getpid()}")
+        if folder.is_dir():  # an incomplete set of samples: replace it
+            os.rename(folder, old)
         try:
             os.rename(tmp, folder)
-        except OSError:  # another process finished the same shard first: same content
-            if not (folder / "keys.json").is_file():
+        except OSError:  # another process finished the same shard first
+            if not covers(folder, refs):
                 raise
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+        shutil.rmtree(folder.with_name(f"{folder.name}.old-{os.getpid()}"), ignore_errors=True)
     return folder
 
 
@@ -166,7 +186,7 @@ class InputCache:
             by_shard[r.path].append(r)
         folders = {p: cache_folder(spec, Path(p)) for p, rs in by_shard.items() if rs}
         jobs = [(folders[p], Path(p), by_shard[p], spec) for p in folders
-                if not (folders[p] / "keys.json").is_file()]
+                if not covers(folders[p], by_shard[p])]
         if jobs:
             root = jobs[0][0].parent
             log.info("caching inputs of %d shard(s) in %s", len(jobs), root)

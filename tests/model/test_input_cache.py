@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import shutil
 
 import numpy as np
 import pytest
@@ -77,3 +78,25 @@ def test_only_what_the_cache_can_hold_is_accepted():
         CacheSpec(StackConfig(method="sbt"), "dis", 3, 2)
     with pytest.raises(ValueError, match="classical flow"):
         CacheSpec(StackConfig(), "exact", 3, 2)
+
+
+def test_a_cache_missing_samples_another_dataset_needs_is_rebuilt(tiny_shards, tmp_path):
+    """Validation keeps a spread of frames whose choice depends on the whole dataset, so a
+    shard cached for one folder of links can lack samples a second folder over the same
+    shard asks for: that shard's cache is rebuilt to hold them, not read and failed on."""
+    own = tmp_path / "shard_00000.h5"      # a private copy: no other test's cache beside it
+    shutil.copy(find_shards(tiny_shards)[0], own)
+    cfg, dcfg, shards, refs, spec = _setup(tmp_path, crop=None, flips=False)
+    mine = [r for r in refs if r.path == str(shards[0])]
+    assert shards == [own] and len(mine) >= 2
+    first = InputCache.build(shards, mine[:1], spec)               # one sample only
+    with pytest.raises(ValueError, match="no cached sample"):
+        ShardSamples(mine[1:2], dcfg, cfg.model.n_stacks, cfg.model.scale, False,
+                     cache=first)[0]
+    second = InputCache.build(shards, mine, spec)                  # all of the shard's samples
+    plain = ShardSamples(mine, dcfg, cfg.model.n_stacks, cfg.model.scale, False)
+    cached = ShardSamples(mine, dcfg, cfg.model.n_stacks, cfg.model.scale, False, cache=second)
+    for i in range(len(mine)):
+        assert torch.equal(plain[i]["hr"], cached[i]["hr"])
+    folder = cache_folder(spec, shards[0])
+    assert not list(folder.parent.glob(f"{folder.name}.old-*"))   # the old one is gone
