@@ -21,6 +21,7 @@ import queue
 import threading
 import time
 from dataclasses import dataclass
+from multiprocessing.managers import SyncManager
 from pathlib import Path
 
 import numpy as np
@@ -189,13 +190,28 @@ _QUEUE = None
 _TEXTURES: TextureSampler | None = None  # one scan of the texture source per worker
 
 
-def _init_worker(q, texture_config) -> None:
+def _init_worker(q, texture_config, parent: int | None = None) -> None:
     global _QUEUE, _TEXTURES
     _QUEUE = q
     _TEXTURES = TextureSampler(texture_config)
     import cv2
 
     cv2.setNumThreads(1)
+    if parent is not None:
+        _watch_parent(parent)
+
+
+def _watch_parent(parent: int) -> None:
+    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
+
+
+def _exit_with_parent(parent: int, period_s: float = 1.0) -> None:
+    """A worker whose ``datagen`` was killed (SIGTERM, SIGKILL: no cleanup runs there)
+    would go on rendering its shard for minutes into a temporary file nobody renames:
+    once its parent is gone (it is re-parented), it exits at once."""
+    while os.getppid() == parent:
+        time.sleep(period_s)
+    os._exit(1)
 
 
 def _worker(plan: ShardPlan, config: DatagenConfig, seed: int) -> ShardResult:
@@ -279,7 +295,9 @@ def _run(todo: list[ShardPlan], config: DatagenConfig, seed: int, workers: int,
     if workers <= 1 or len(todo) <= 1:
         return [write_shard(p, config, seed, progress, textures=textures) for p in todo]
     ctx = mp.get_context("spawn")  # drjit/numba threads do not survive fork
-    with ctx.Manager() as manager:
+    manager = SyncManager(ctx=ctx)
+    manager.start(_watch_parent, (os.getpid(),))  # the queue's server dies with us too
+    with manager:
         return _run_pool(todo, config, seed, workers, progress, ctx, manager.Queue())
 
 
@@ -299,7 +317,7 @@ def _run_pool(todo, config, seed, workers, progress, ctx, q) -> list[ShardResult
     try:
         with futures.ProcessPoolExecutor(min(workers, len(todo)), mp_context=ctx,
                                          initializer=_init_worker,
-                                         initargs=(q, config.textures)) as pool:
+                                         initargs=(q, config.textures, os.getpid())) as pool:
             jobs = [pool.submit(_worker, p, config, seed) for p in todo]
             for job in futures.as_completed(jobs):
                 results.append(job.result())

@@ -454,3 +454,53 @@ def test_shard_index_is_a_number_or_auto(capsys):
         main(["generate", "--n-seq", "2", "--out", "x", "--shard-index", "first"])
     assert exc.value.code == 2
     assert "expected an integer or 'auto', got 'first'" in capsys.readouterr().err
+
+
+def _children(pid: int) -> set[int]:
+    """Direct children of ``pid`` (from /proc: Linux)."""
+    found = set()
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            found.add(int(stat.parent.name))
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+def test_workers_exit_when_datagen_is_killed(tmp_path):
+    """SIGKILL runs no cleanup in the parent: its workers (and the progress queue's
+    server) must notice on their own and stop, not render on into orphaned temp files."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    out = tmp_path / "d"
+    proc = subprocess.Popen([sys.executable, "-m", "datagen.cli", "generate", "--n-seq", "16",
+                             "--out", str(out), "--workers", "2", "--no-progress"],
+                            cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        deadline = time.monotonic() + 120
+        while len(_children(proc.pid)) < 4 and time.monotonic() < deadline:  # tracker,
+            time.sleep(0.2)                                  # manager and two workers
+        kids = _children(proc.pid)
+        assert len(kids) >= 4, "datagen did not start its workers"
+        time.sleep(2)  # the workers are rendering now
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    deadline = time.monotonic() + 15
+    while any(_alive(k) for k in kids) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not [k for k in kids if _alive(k)]
