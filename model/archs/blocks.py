@@ -61,20 +61,26 @@ class SubPixelLift(nn.Module):
     The filter has no parameters and adds nothing to the state dict.
     """
 
-    def __init__(self, scale: int, smooth: bool = False) -> None:
+    def __init__(self, scale: int, smooth: bool = False, channels: int = 1) -> None:
         super().__init__()
-        self.scale, self.smooth = scale, smooth
+        self.scale, self.smooth = scale, smooth and scale > 1
         self.shuffle = nn.PixelShuffle(scale)
+        if self.smooth:  # fixed depthwise kernels of known shape (graph exports need it);
+            taps = anti_grid_taps(scale)  # not persistent: the state dict stays as it was
+            k = len(taps)
+            self.register_buffer("kernel_x", taps.view(1, 1, 1, k).repeat(channels, 1, 1, 1),
+                                 persistent=False)
+            self.register_buffer("kernel_y", taps.view(1, 1, k, 1).repeat(channels, 1, 1, 1),
+                                 persistent=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         y = self.shuffle(x)
-        if not self.smooth or self.scale == 1:
+        if not self.smooth:
             return y
-        taps = anti_grid_taps(self.scale).to(dtype=y.dtype, device=y.device)
-        c, k = y.shape[1], taps.numel()
+        c = self.kernel_x.shape[0]
         y = F.pad(y, (self.scale // 2,) * 4, mode="replicate")
-        y = F.conv2d(y, taps.view(1, 1, 1, k).expand(c, 1, 1, k), groups=c)
-        return F.conv2d(y, taps.view(1, 1, k, 1).expand(c, 1, k, 1), groups=c)
+        y = F.conv2d(y, self.kernel_x.to(y.dtype), groups=c)
+        return F.conv2d(y, self.kernel_y.to(y.dtype), groups=c)
 
 
 def anti_grid_taps(scale: int) -> torch.Tensor:

@@ -134,7 +134,7 @@ class E2SRI(nn.Module):
             lift = s * cfg.fold
             self.mix = nn.Sequential(conv((cfg.n_stacks - 1) * b, b),
                                      nn.Conv2d(b, lift * lift * h, 3, 1, 1),
-                                     SubPixelLift(lift, cfg.lift == "smooth"), nn.PReLU(h),
+                                     SubPixelLift(lift, cfg.lift == "smooth", h), nn.PReLU(h),
                                      conv(h, 1, act=False))
         self.flow_net = FlowNet(cfg.stack_channels) if cfg.flow == "learned" else None
 

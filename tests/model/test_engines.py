@@ -72,6 +72,8 @@ TINY = dict(base_channels=8, hr_channels=4, c_blocks=1, blocks=1)
     dict(),  # the paper's layout: HR state, transposed convolutions
     dict(state="lr", fold=2),  # folds by 2: odd sizes are padded and cropped inside
     dict(scale=4, state="lr", fold=2),
+    dict(state="lr", lift="smooth"),  # the anti-grid filter: replicate pad + depthwise conv
+    dict(scale=4, state="lr", fold=2, lift="smooth"),
     dict(central="aps"),
     dict(flow="learned"),  # no flows input used
     dict(flow="none"),
