@@ -424,15 +424,16 @@ def write_figure(sequences: list[SequenceOutputs], path: Path, scale: int) -> Pa
     for seq in sequences:
         k = len(seq.images["ours"]) // 2
         ours = seq.images["ours"][k]
-        base = seq.images.get("hf", [ours])[k]
+        hf = seq.images.get("hf")  # absent with --no-baselines
+        base = hf[k] if hf else None
         if seq.hr_targets is not None or not seq.lr_targets:  # compared at HR
             target = seq.hr_targets[k] if seq.hr_targets is not None else None
-            base = upsample(base, scale)
+            base = upsample(base, scale) if base is not None else None
         else:  # against APS frames at the sensor size
             target, ours = seq.lr_targets[k], _down(ours, scale)
         row = [(seq.event_images[k], f"events: {seq.name}")]
         cy, cx = _detail_centre(target if target is not None else ours)
-        panels = [(base, "HF"), (ours, "ours")]
+        panels = ([(base, "HF")] if base is not None else []) + [(ours, "ours")]
         if target is not None:
             panels.append((target, "ground truth"))
         for img, label in panels:

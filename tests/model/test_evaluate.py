@@ -100,3 +100,19 @@ def test_split_all_scores_every_sequence_and_frameless_recordings_go_to_the_figu
     assert rows == []  # nothing to score against ...
     figure = cv2.imread(str(tmp_path / "f" / "figure.png"))
     assert figure is not None and figure.shape[0] > 100  # ... but shown: events | HF | ours
+
+
+def test_without_baselines_the_figure_has_no_hf_panels(tiny_shards, tiny_checkpoint, tmp_path):
+    """--no-baselines once crashed in the figure (after the tables were written), looking
+    up HF's middle frame in a one-element stand-in list."""
+    from model.inference.evaluate import EvalOptions, evaluate
+
+    with_hf = evaluate(tiny_checkpoint, tmp_path / "b", tiny_shards, split="all",
+                       options=EvalOptions(baselines=("hf",), temporal=False))
+    alone = evaluate(tiny_checkpoint, tmp_path / "n", tiny_shards, split="all",
+                     options=EvalOptions(baselines=(), temporal=False))
+    assert {r["method"] for r in alone} == {"ours"}
+    assert [r for r in with_hf if r["method"] == "ours"] == alone  # the same scores
+    a = cv2.imread(str(tmp_path / "b" / "figure.png"))
+    b = cv2.imread(str(tmp_path / "n" / "figure.png"))
+    assert b is not None and b.shape[0] == a.shape[0] and b.shape[1] < a.shape[1]  # 2 fewer
