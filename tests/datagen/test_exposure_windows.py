@@ -10,7 +10,7 @@ import pytest
 from datagen.formats.base import Recording, sorted_exposures
 from datagen.recording import open_recording
 from tests.conftest import REAL_EVENTS
-from tests.datagen.test_recording import events
+from tests.datagen.test_recording import aedat4_writer, events
 
 DAVIS = REAL_EVENTS / "davis346"
 
@@ -20,14 +20,7 @@ def write_aedat4_exposed(path, ev, frame_us, exposure_us):
     frame's timestamp) lasting ``exposure_us`` each."""
     import dv_processing as dv
 
-    cfg = dv.io.MonoCameraWriter.Config("TEST")
-    cfg.addEventStream((ev.sensor_hw[1], ev.sensor_hw[0]))
-    cfg.addFrameStream((ev.sensor_hw[1], ev.sensor_hw[0]))
-    writer = dv.io.MonoCameraWriter(str(path), cfg)
-    store = dv.EventStore()
-    for t, x, y, p in zip(ev.t_ns // 1000, ev.x, ev.y, ev.p):
-        store.push_back(int(t), int(x), int(y), bool(p > 0))
-    writer.writeEvents(store)
+    writer = aedat4_writer(path, ev)
     rng = np.random.default_rng(2)
     for t, e in zip(frame_us, exposure_us):
         img = (rng.random(ev.sensor_hw) * 255).astype(np.uint8)

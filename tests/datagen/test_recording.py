@@ -61,7 +61,8 @@ def write_hdf5(path, ev, with_frames=True):
                 ds.attrs["timestamp"] = t * 1e-9
 
 
-def write_aedat4(path, ev):
+def aedat4_writer(path, ev):
+    """An AEDAT4 writer with an event and a frame stream, ``ev`` already written."""
     import dv_processing as dv
 
     cfg = dv.io.MonoCameraWriter.Config("TEST")
@@ -72,6 +73,13 @@ def write_aedat4(path, ev):
     for t, x, y, p in zip(ev.t_ns // 1000, ev.x, ev.y, ev.p):
         store.push_back(int(t), int(x), int(y), bool(p > 0))
     writer.writeEvents(store)
+    return writer
+
+
+def write_aedat4(path, ev):
+    import dv_processing as dv
+
+    writer = aedat4_writer(path, ev)
     imgs, ts = frames(ev.sensor_hw)
     for img, t in zip(imgs, ts):
         writer.writeFrame(dv.Frame(t // 1000, img))
