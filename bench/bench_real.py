@@ -31,7 +31,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--checkpoint", help="a trained model (default: the shipped one of "
                    "--scale), e.g. to compare two models")
     p.add_argument("--scale", type=int, default=2, help="shipped model without --checkpoint")
-    p.add_argument("--engine", choices=["auto", "torch", "onnxruntime", "openvino"],
+    p.add_argument("--engine", choices=["auto", "torch", "onnxruntime", "openvino",
+                                        "openvino-int8"],
                    default="auto", help="what runs the network (as evaluate --engine)")
     p.add_argument("--events-per-stack", type=int, help="default: chosen per recording")
     p.add_argument("--stack-rule", choices=["auto", "active", "area"], default="auto",

@@ -90,11 +90,14 @@ def _sensor(text: str | None) -> tuple[int, int] | None:
 
 
 def _engine_argument(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--engine", choices=["auto", "torch", "onnxruntime", "openvino"],
+    p.add_argument("--engine", choices=["auto", "torch", "onnxruntime", "openvino",
+                                        "openvino-int8"],
                    default="auto", help="what runs the network: auto (default: the fastest "
                    "installed on a CPU, openvino > onnxruntime > torch; torch on a GPU), "
                    "torch (eager PyTorch, the reference), onnxruntime or openvino (the "
-                   "'fast' extra; exported once into ~/.cache/e2sr, see docs/evaluation.md)")
+                   "'fast' extra; exported once into ~/.cache/e2sr, see docs/evaluation.md), "
+                   "openvino-int8 (quantised once, calibrated on simulated inputs: faster, "
+                   "outputs within a few grey levels of float32; never picked by auto)")
 
 
 def _stack_arguments(p: argparse.ArgumentParser) -> None:

@@ -11,6 +11,9 @@ tensors ``(B, n, c, H, W)``, ``(B, c_central, H, W)``, ``(B, n, 2, H, W)``, and 
 - ``openvino``: OpenVINO's IR on its CPU plugin, compiled for the sensor size at load
   (static shapes run faster than dynamic ones) and for any other size on first use;
   precision pinned to float32 (on CPUs with bf16 units OpenVINO would otherwise use them).
+- ``openvino-int8``: the same, on a graph quantised to int8 by NNCF
+  (:mod:`model.inference.quantize`, calibrated on simulated inputs). Faster, but its
+  outputs differ from float32 by more than 1/255; never chosen by ``auto``.
 - ``auto``: ``torch`` on a GPU; on a CPU the first installed of :data:`PREFERENCE`
   (OpenVINO was the fastest, ONNX Runtime second, on the 2-core CPU of
   ``docs/benchmarks.md``); when that engine fails to export or compile, a warning and
@@ -38,7 +41,7 @@ import torch
 
 from model import checkpoint
 from model.archs.e2sri_arch import E2SRI
-from model.inference import graph_export
+from model.inference import graph_export, quantize
 from model.inference.graph_cache import CacheKey, cached_file, weights_digest
 
 log = logging.getLogger(__name__)
@@ -46,11 +49,13 @@ log = logging.getLogger(__name__)
 Forward = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
 """The network's forward pass: ``(stacks, central, flows) -> image``."""
 
-ENGINES = ("torch", "onnxruntime", "openvino")
+ENGINES = ("torch", "onnxruntime", "openvino", "openvino-int8")
 PREFERENCE = ("openvino", "onnxruntime", "torch")
 EXTRA = "fast"
-PACKAGES = {"torch": (), "onnxruntime": ("onnxruntime", "onnx"), "openvino": ("openvino",)}
-"""The Python packages each engine needs (``onnx``: torch's ONNX exporter)."""
+PACKAGES = {"torch": (), "onnxruntime": ("onnxruntime", "onnx"), "openvino": ("openvino",),
+            "openvino-int8": ("openvino", "nncf")}
+"""The Python packages each engine needs (``onnx``: torch's ONNX exporter; ``nncf``: the
+quantiser)."""
 
 
 class EngineMissing(ValueError):
@@ -139,7 +144,7 @@ class OpenVinoEngine:
     path: Path
     threads: int
     sensor_hw: tuple[int, int] | None = None
-    name: ClassVar[str] = "openvino"
+    name: str = "openvino"
     core: Any = field(init=False, repr=False)
     model: Any = field(init=False, repr=False)
     inputs: tuple[str, ...] = field(init=False)
@@ -207,15 +212,15 @@ def load_engine(engine: str, net: E2SRI, device: torch.device,
 def _compiled(engine: str, net: E2SRI, sensor_hw: tuple[int, int] | None,
               cache: Path | None) -> OnnxRuntimeEngine | OpenVinoEngine:
     suffix, export = _EXPORTS[engine]
-    key = CacheKey(weights_digest(net, checkpoint.net_args(net)), engine, version(engine),
-                   suffix)
+    key = CacheKey(weights_digest(net, checkpoint.net_args(net)), engine,
+                   _engine_version(engine), suffix)
     build = functools.partial(export, net)
     threads = torch.get_num_threads()
 
     def make(path: Path) -> OnnxRuntimeEngine | OpenVinoEngine:
         if engine == "onnxruntime":
             return OnnxRuntimeEngine(path, threads)
-        return OpenVinoEngine(path, threads, sensor_hw)
+        return OpenVinoEngine(path, threads, sensor_hw, engine)
 
     path = cached_file(key, build, cache)
     try:
@@ -225,6 +230,15 @@ def _compiled(engine: str, net: E2SRI, sensor_hw: tuple[int, int] | None,
         return make(cached_file(key, build, cache, rebuild=True))
 
 
+def _engine_version(engine: str) -> str:
+    """What the cached file of ``engine`` depends on besides the weights: the versions of
+    its packages (and, for int8, the calibration recipe)."""
+    if engine == "openvino-int8":
+        return f"{version('openvino')}+nncf{version('nncf')}+{quantize.DEFAULT_CALIBRATION.tag}"
+    return version(engine)
+
+
 _EXPORTS = {"onnxruntime": (".onnx", graph_export.export_onnx),
-            "openvino": (".npz", graph_export.export_openvino)}
+            "openvino": (".npz", graph_export.export_openvino),
+            "openvino-int8": (".npz", quantize.export_openvino_int8)}
 """Each compiled engine's cache file suffix and exporter."""

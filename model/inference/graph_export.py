@@ -78,6 +78,14 @@ def export_openvino(net: E2SRI, path: Path) -> None:
         warnings.simplefilter("ignore")
         graph = ov.convert_model(_cpu_copy(net), example_input=example_inputs(net),
                                  input=shapes)
+    save_openvino(graph, path)
+
+
+def save_openvino(graph, path: Path) -> None:
+    """Write an ``openvino.Model`` as IR packed in one ``.npz`` (arrays ``xml``, ``bin``);
+    weights stay as they are (OpenVINO would compress float32 ones to float16)."""
+    import openvino as ov
+
     with tempfile.TemporaryDirectory() as tmp:
         xml = Path(tmp) / "net.xml"
         ov.save_model(graph, str(xml), compress_to_fp16=False)

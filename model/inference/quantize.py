@@ -1,0 +1,163 @@
+"""INT8 post-training quantisation of the network for OpenVINO (``--engine openvino-int8``).
+
+The float32 OpenVINO graph (:func:`model.inference.graph_export.export_openvino`) is
+quantised by NNCF: its convolutions' weights per output channel, their inputs per tensor,
+with ranges measured on calibration inputs. What stays float32, because it costs little
+and carries most of the rounding error (measured on held-out training samples, see
+docs/benchmarks.md):
+- the first convolution on each input (stacks and flows are narrow, signed and
+  heavy-tailed: 8 bits over the flow range would be coarse), and
+- the last two convolutions (the lift to the output resolution and the image itself:
+  their rounding lands directly on the output).
+
+Calibration inputs come from the simulator, not from the data the user reconstructs, so one
+quantised graph serves every recording and is exported once per weights (the cache:
+:mod:`model.inference.graph_cache`): a few short sequences of the default dataset recipe on
+the *training* half of its textures (the held-out test textures are never seen), rendered
+by the homography renderer, turned into network inputs exactly as training does
+(:class:`model.data.dataset.ShardSamples`: SBN stacks and DIS flow).
+
+INT8 changes the outputs (unlike the float32 engines, which match torch within 1e-6): it is
+never chosen by ``--engine auto``, only when asked for. Its quality against float32 on the
+simulated test split is measured in docs/benchmarks.md.
+"""
+
+from __future__ import annotations
+
+import logging
+import tempfile
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from model.archs.e2sri_arch import E2SRI
+from model.inference import graph_export
+
+log = logging.getLogger(__name__)
+
+CALIBRATION_VERSION = 1
+"""Raised when the calibration recipe below changes (it is part of the cache key)."""
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """How many calibration inputs, from how many simulated sequences.
+
+    Attributes:
+        sequences: simulated sequences (default recipe, training textures).
+        frames: frames per sequence (one sample per frame whose stacks fit).
+        samples: calibration inputs used, spread evenly over all the samples.
+        seed: the simulation seed.
+    """
+
+    sequences: int = 4
+    frames: int = 24
+    samples: int = 64
+    seed: int = 20_251_203
+
+    def __post_init__(self) -> None:
+        if min(self.sequences, self.frames, self.samples) < 1:
+            raise ValueError("calibration needs at least one sequence, frame and sample")
+
+    @property
+    def tag(self) -> str:
+        """What the cache key carries of this recipe."""
+        return (f"cal{CALIBRATION_VERSION}_{self.sequences}x{self.frames}_{self.samples}"
+                f"_{self.seed}")
+
+
+DEFAULT_CALIBRATION = Calibration()
+"""The recipe every int8 export uses (tests swap in a smaller one)."""
+
+
+def calibration_inputs(net: E2SRI, calibration: Calibration | None = None
+                       ) -> list[dict[str, np.ndarray]]:
+    """Network inputs ``{"stacks", "central", "flows"}`` (batch 1, float32) for ``net``,
+    simulated as the module doc says (``calibration``: default :data:`DEFAULT_CALIBRATION`)."""
+    calibration = calibration or DEFAULT_CALIBRATION
+    from datagen.config import DatagenConfig
+    from datagen.generate import plan_shards, write_shard
+    from esim_lite.core.dataconf import load_config
+    from model.data.config import DataConfig
+    from model.data.dataset import ShardSamples, index_samples
+
+    cfg = net.config
+    per_stack = 3000  # the training datasets' frame spacing: one stack per frame
+    config = load_config(DatagenConfig, None, values={
+        "simulation.camera.scales": [cfg.scale],
+        "simulation.render.backend": "homography",
+        "simulation.frames.count": calibration.frames,
+        "simulation.frames.every_events": per_stack,
+        "simulation.frames.tail_events": per_stack * (cfg.n_stacks // 2 + 1),
+        "textures.split": "train",
+        "sequences_per_shard": calibration.sequences})
+    data = DataConfig(crop=None, val_fraction=0.0, flow="dis")
+    with tempfile.TemporaryDirectory(prefix="e2sr-calibration-") as tmp:
+        plan = plan_shards(Path(tmp), calibration.sequences, calibration.sequences)[0]
+        write_shard(plan, config, calibration.seed, render_threads=1)
+        refs, _ = index_samples([plan.path], data, cfg.n_stacks, cfg.scale)
+        if not refs:
+            raise RuntimeError("the calibration sequences gave no samples")
+        pick = np.unique(np.linspace(0, len(refs) - 1, min(calibration.samples, len(refs)))
+                         .round().astype(int))
+        dataset = ShardSamples([refs[i] for i in pick], data, cfg.n_stacks, cfg.scale,
+                               train=False)
+        items = [dataset[i] for i in range(len(dataset))]
+    mid = cfg.n_stacks // 2
+    out = []
+    for item in items:
+        stacks = item["stacks"][None].numpy()
+        central = stacks[:, mid] if cfg.central == "stack" else item["lr"][None].numpy()
+        out.append({"stacks": stacks, "central": np.ascontiguousarray(central),
+                    "flows": item["flows"][None].numpy()})
+    return out
+
+
+def kept_in_float(model) -> list[str]:
+    """Names of the convolutions of an OpenVINO graph left in float32: every convolution
+    with no convolution upstream (the first on each input) and the last two in topological
+    order (the lift and the image)."""
+    convs = {"Convolution", "GroupConvolution", "ConvolutionBackpropData"}
+    after_conv: dict[str, bool] = {}  # op name -> a convolution lies on some path into it
+    ordered = []
+    for op in model.get_ordered_ops():
+        ups = [v.get_node() for v in op.input_values()]
+        seen = any(after_conv.get(u.get_friendly_name(), False) or u.get_type_name() in convs
+                   for u in ups)
+        after_conv[op.get_friendly_name()] = seen
+        if op.get_type_name() in convs:
+            ordered.append((op.get_friendly_name(), seen))
+    first = [name for name, seen in ordered if not seen]
+    last = [name for name, _ in ordered[-2:]]
+    return list(dict.fromkeys(first + last))
+
+
+def quantize_openvino(net: E2SRI, calibration: Calibration | None = None):
+    """``net`` as an int8 OpenVINO model (``openvino.Model``), calibrated as above."""
+    import nncf
+    import openvino as ov
+
+    with tempfile.TemporaryDirectory() as tmp:
+        fp32 = Path(tmp) / "fp32.npz"
+        graph_export.export_openvino(net, fp32)
+        model = graph_export.read_openvino(fp32, ov.Core())
+    inputs = calibration_inputs(net, calibration)
+    names = [next(n for n in graph_export.INPUT_NAMES if n in p.get_names())
+             for p in model.inputs]
+    dataset = nncf.Dataset(inputs, lambda d: [d[n] for n in names])
+    log.info("quantising the network to int8 on %d simulated inputs", len(inputs))
+    nncf.set_log_level(logging.ERROR)  # its per-layer notes and progress bars
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return nncf.quantize(model, dataset, subset_size=len(inputs),
+                             preset=nncf.QuantizationPreset.MIXED,
+                             ignored_scope=nncf.IgnoredScope(names=kept_in_float(model),
+                                                             validate=False))
+
+
+def export_openvino_int8(net: E2SRI, path: Path, calibration: Calibration | None = None
+                         ) -> None:
+    """Write the int8 model packed as :func:`graph_export.export_openvino` packs (``.npz``)."""
+    graph_export.save_openvino(quantize_openvino(net, calibration), path)

@@ -1,0 +1,127 @@
+"""``--engine openvino-int8``: the network quantised by NNCF on simulated calibration inputs.
+
+Properties: the graph really runs convolutions in int8 (quantisers in front of them) except
+the ones kept in float32; its output stays close to float32 on realistic inputs it was not
+calibrated on; the export is cached and reused; ``auto`` never picks it; a missing ``nncf``
+is a one-line error."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from model import checkpoint
+from model.inference import engines, graph_export, quantize
+from model.inference.engines import EngineMissing, load_engine
+from model.inference.pretrained import shipped_checkpoint
+from tests.model.test_engines import hide
+
+CPU = torch.device("cpu")
+pytestmark = pytest.mark.skipif(not engines.installed("openvino-int8"),
+                                reason="openvino or nncf not installed")
+SMALL = quantize.Calibration(sequences=1, frames=10, samples=8, seed=5)
+
+
+@pytest.fixture(scope="module")
+def shipped_x2():
+    return checkpoint.load_model(shipped_checkpoint(2))
+
+
+@pytest.fixture(scope="module", autouse=True)
+def small_calibration():
+    """Every export in this module calibrates on :data:`SMALL` (seconds, not a minute)."""
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(quantize, "DEFAULT_CALIBRATION", SMALL)
+        yield
+
+
+@pytest.fixture(scope="module")
+def int8_folder(shipped_x2, tmp_path_factory):
+    """The shipped x2 model exported once to int8."""
+    folder = tmp_path_factory.mktemp("int8")
+    load_engine("openvino-int8", shipped_x2, CPU, (48, 64), folder)
+    return folder
+
+
+def test_first_and_last_convolutions_stay_float(shipped_x2, tmp_path):
+    graph_export.export_openvino(shipped_x2, tmp_path / "n.npz")
+    kept = quantize.kept_in_float(graph_export.read_openvino(tmp_path / "n.npz"))
+    modules = {name.split("/")[0].removeprefix("__module.") for name in kept}
+    # efr0's and efr's first convolutions read the inputs (efr's runs once per side stack);
+    # mix.1 lifts to the output resolution and mix.4 makes the image
+    assert modules == {"efr0.0.0", "efr.0.0", "mix.1", "mix.4.0"}
+    assert len(kept) == 5
+
+
+def test_the_graph_is_quantised_except_the_kept_convolutions(int8_folder):
+    [path] = sorted((int8_folder / "engines").iterdir())
+    assert "openvino-int8" in path.name and SMALL.tag in path.name
+    model = graph_export.read_openvino(path)
+    ops = list(model.get_ordered_ops())
+    convs = [op for op in ops if op.get_type_name() == "Convolution"]
+    kept = set(quantize.kept_in_float(model))
+
+    def quantised(node) -> bool:  # a FakeQuantize, possibly through Converts and Concats
+        while node.get_type_name() == "Convert":
+            node = node.input_value(0).get_node()
+        if node.get_type_name() == "Concat":
+            return all(quantised(v.get_node()) for v in node.input_values())
+        return node.get_type_name() == "FakeQuantize"
+
+    def quantised_input(op) -> bool:
+        return quantised(op.input_value(0).get_node())
+
+    assert len(convs) == 29  # 17 modules; the recurrence runs 12 of them once per side stack
+    for op in convs:
+        assert quantised_input(op) == (op.get_friendly_name() not in kept), \
+            op.get_friendly_name()
+
+
+def test_int8_stays_close_to_float32_on_inputs_it_was_not_calibrated_on(shipped_x2,
+                                                                         int8_folder):
+    engine = load_engine("openvino-int8", shipped_x2, CPU, (64, 64), int8_folder)
+    assert engine.name == "openvino-int8"
+    held_out = quantize.calibration_inputs(
+        shipped_x2, quantize.Calibration(sequences=1, frames=10, samples=3, seed=99))
+    for d in held_out:
+        x = [torch.from_numpy(d[k]) for k in graph_export.INPUT_NAMES]
+        with torch.inference_mode():
+            want = shipped_x2(*x).clamp(0, 1)
+            got = engine(*x).clamp(0, 1)
+        assert got.shape == want.shape == (1, 1, 256, 256)
+        diff = (got - want).abs()
+        # int8 moves outputs by a few grey levels, not more; an unquantised graph would
+        # give ~1e-6 (checked below), a broken one tenths
+        assert float(diff.mean()) < 0.03
+        assert 1e-4 < float(diff.max()) < 0.5
+        psnr = -10 * np.log10(float((diff ** 2).mean()))
+        assert psnr > 30
+
+
+def test_the_int8_export_is_reused(shipped_x2, int8_folder, monkeypatch):
+    [path] = sorted((int8_folder / "engines").iterdir())
+    before = path.stat().st_mtime_ns
+
+    def no_export(*_):
+        raise AssertionError("quantised again")
+
+    monkeypatch.setitem(engines._EXPORTS, "openvino-int8", (".npz", no_export))
+    load_engine("openvino-int8", shipped_x2, CPU, (20, 24), int8_folder)
+    assert path.stat().st_mtime_ns == before
+    # another calibration recipe is another file, not this one
+    monkeypatch.setattr(quantize, "DEFAULT_CALIBRATION", quantize.Calibration(samples=9))
+    with pytest.raises(AssertionError, match="quantised again"):
+        load_engine("openvino-int8", shipped_x2, CPU, (20, 24), int8_folder)
+
+
+def test_auto_never_picks_int8_and_a_missing_nncf_is_named(monkeypatch):
+    assert engines.choose("auto", CPU) != "openvino-int8"
+    hide(monkeypatch, "nncf")
+    with pytest.raises(EngineMissing, match=r"needs nncf, which is not installed.*e2sr\[fast\]"):
+        engines.choose("openvino-int8", CPU)
+
+
+def test_a_calibration_needs_something_to_calibrate_on():
+    with pytest.raises(ValueError, match="at least one"):
+        quantize.Calibration(samples=0)
