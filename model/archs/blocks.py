@@ -92,3 +92,45 @@ def anti_grid_taps(scale: int) -> torch.Tensor:
     taps = torch.full((scale + 1,), 1.0, dtype=torch.float64)
     taps[0] = taps[-1] = 0.5
     return (taps / taps.sum()).float()
+
+
+class ContextBranch(nn.Module):
+    """Coarse context added to LR features: ``x + out(cat_f up(path_f(avgpool_f(x))))``.
+
+    The network's convolutions see about 25 LR pixels around each output pixel, so a flat,
+    event-free region wider than that is filled with a constant prior rather than the level
+    its bounding edges imply (the halos of docs/notes/halos.md). Each path averages the
+    features over ``f x f`` cells (:func:`cell_means`), runs two 3x3 convolutions there
+    (each seeing ``3 f`` pixels), and is brought back by bilinear interpolation; a 1x1
+    convolution mixes the paths into a residual. With factors (4, 16) an output pixel sees
+    about +-50 LR pixels for little compute.
+    That last convolution starts at zero, so a network warm-started from one without the
+    branch computes exactly what it did until training moves it.
+    """
+
+    def __init__(self, channels: int, width: int, factors: tuple[int, ...] = (4, 16)) -> None:
+        super().__init__()
+        self.factors = tuple(factors)
+        self.paths = nn.ModuleList(nn.Sequential(conv(channels, width), conv(width, width))
+                                   for _ in self.factors)
+        self.out = nn.Conv2d(width * len(self.factors), channels, 1)
+        nn.init.zeros_(self.out.weight)
+        nn.init.zeros_(self.out.bias)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        h, w = x.shape[-2:]
+        parts = [F.interpolate(path(cell_means(x, f)), scale_factor=f, mode="bilinear",
+                               align_corners=False)[..., :h, :w]
+                 for f, path in zip(self.factors, self.paths)]
+        return x + self.out(torch.cat(parts, dim=1))
+
+
+def cell_means(x: torch.Tensor, f: int) -> torch.Tensor:
+    """Means of ``x`` over ``f x f`` cells, ``(..., H, W) -> (..., ceil(H/f), ceil(W/f))``;
+    cells cut by the border average the pixels they hold. (Zero padding to a multiple of
+    ``f``, divided by the same pooling of ones: graph engines refuse a pooling window
+    larger than its input, which ``ceil_mode`` would need on small inputs.)"""
+    h, w = x.shape[-2:]
+    pad = (0, -w % f, 0, -h % f)
+    held = F.avg_pool2d(F.pad(torch.ones_like(x[:, :1]), pad), f)
+    return F.avg_pool2d(F.pad(x, pad), f) / held

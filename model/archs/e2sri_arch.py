@@ -31,7 +31,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from esim_lite.geometry.camera import check_scales
-from model.archs.blocks import SubPixelLift, conv, deconv, down, res_stack
+from model.archs.blocks import ContextBranch, SubPixelLift, conv, deconv, down, res_stack
 from model.archs.flow import FlowNet
 
 
@@ -68,6 +68,11 @@ class NetConfig:
             ``smooth``: the shuffle followed by a fixed, parameter-free filter that removes
             any period-``scale`` pattern (:class:`model.archs.blocks.SubPixelLift`); the
             state dict is the same, so a ``shuffle`` model warm-starts a ``smooth`` one.
+        context: with ``state: lr``, the width of a coarse context branch on the features
+            Mix reads (:class:`model.archs.blocks.ContextBranch`: averages over 4x4 and
+            16x16 cells, two convolutions each, a zero-initialised residual), which lets an
+            output pixel see about +-50 LR pixels instead of about +-25; 0 (the shipped
+            models): none. A model without it warm-starts one with it exactly.
     """
 
     scale: int = 2
@@ -82,6 +87,7 @@ class NetConfig:
     state: Literal["hr", "lr"] = "hr"
     fold: int = 1
     lift: Literal["shuffle", "smooth"] = "shuffle"
+    context: int = 0
 
     def __post_init__(self) -> None:
         if self.fold < 1 or (self.fold > 1 and self.state != "lr"):
@@ -89,6 +95,8 @@ class NetConfig:
         check_scales((self.scale,), "model.scale")
         if self.lift not in ("shuffle", "smooth"):
             raise ValueError(f"model.lift must be shuffle or smooth, got {self.lift!r}")
+        if self.context < 0 or (self.context and self.state != "lr"):
+            raise ValueError("model.context must be >= 0, and > 0 only with state: lr")
         if self.n_stacks < 3 or self.n_stacks % 2 == 0:
             raise ValueError(f"n_stacks must be odd and >= 3, got {self.n_stacks}")
         if min(self.base_channels, self.hr_channels, self.c_blocks, self.blocks) < 1:
@@ -136,6 +144,8 @@ class E2SRI(nn.Module):
                                      nn.Conv2d(b, lift * lift * h, 3, 1, 1),
                                      SubPixelLift(lift, cfg.lift == "smooth", h), nn.PReLU(h),
                                      conv(h, 1, act=False))
+            if cfg.context:
+                self.context = ContextBranch((cfg.n_stacks - 1) * b, cfg.context)
         self.flow_net = FlowNet(cfg.stack_channels) if cfg.flow == "learned" else None
 
     def forward(self, stacks: torch.Tensor, central: torch.Tensor,
@@ -161,7 +171,10 @@ class E2SRI(nn.Module):
             new_state = self.rnet_b(e) + c
             outputs.append(self.rnet_d(new_state))
             state = self.down(new_state)
-        out = self.mix(torch.cat(outputs, dim=1))
+        features = torch.cat(outputs, dim=1)
+        if cfg.context:
+            features = self.context(features)
+        out = self.mix(features)
         return out[..., :hgt * cfg.scale, :wid * cfg.scale] if f > 1 else out
 
     def _flows(self, stacks: torch.Tensor, flows: torch.Tensor | None) -> torch.Tensor:

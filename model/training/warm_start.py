@@ -1,6 +1,7 @@
 """Start a network from another one's weights: an x4 run from a trained x2 model.
 
-Only the scale and the lift's ending (``lift``: the parameter-free anti-grid filter) may
+Only the scale, the lift's ending (``lift``: the parameter-free anti-grid filter) and the
+context branch (``context``: its tensors are left fresh, its residual starting at zero) may
 differ between the two networks. Every tensor whose name and shape agree
 is copied. In the LR-state variant the one scale-dependent layer is the sub-pixel lift
 (``mix.1``: ``scale^2 x hr_channels`` output channels before the pixel shuffle); when the new
@@ -25,7 +26,8 @@ from model.archs.e2sri_arch import E2SRI, NetConfig
 log = logging.getLogger(__name__)
 
 LIFT = "mix.1"  # the sub-pixel convolution of the LR-state variant
-FREE = ("scale", "lift")  # what a warm start may change (neither adds a tensor)
+FREE = ("scale", "lift", "context")  # what a warm start may change: no tensor, or new ones
+# that start at zero (the context branch's residual)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -60,11 +62,15 @@ def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
     ckpt = checkpoint.load(source)
     old = from_mapping(NetConfig, ckpt["net"], source=str(source))
     new = net.config
-    if dataclasses.replace(old, scale=new.scale, lift=new.lift) != new:
+    if dataclasses.replace(old, scale=new.scale, lift=new.lift, context=new.context) != new:
         differ = [f.name for f in dataclasses.fields(NetConfig) if f.name not in FREE
                   and getattr(old, f.name) != getattr(new, f.name)]
         raise ValueError(f"{source}: its network differs in {', '.join(differ)}; a warm start "
-                         f"may change only the scale and the lift filter")
+                         f"may change only the scale, the lift filter and the context "
+                         f"branch")
+    if old.context and new.context != old.context:
+        raise ValueError(f"{source}: its context branch (width {old.context}) would be lost "
+                         f"or left fresh (model.context: {new.context})")
     if new.scale % old.scale:
         raise ValueError(f"{source}: an x{old.scale} model cannot start an x{new.scale} one "
                          f"(the new scale must be a multiple of the old)")
