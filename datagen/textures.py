@@ -30,6 +30,10 @@ BUILTIN_FILES = ("astronaut.png", "brick.png", "camera.png", "chelsea.png", "cof
                  "coins.png", "grass.png", "gravel.png", "hubble_deep_field.jpg", "ihc.png",
                  "moon.png", "page.png", "rocket.jpg", "text.png", "motorcycle_left.png")
 PROCEDURAL = ("noise", "shapes", "grating", "checker")
+"""The procedural patterns drawn by default (``procedural_kinds``)."""
+PROCEDURAL_KINDS = PROCEDURAL + ("poster",)
+"""Every procedural pattern: ``poster`` (a flat ground with a few large flat shapes, the
+scene of the Event Camera Dataset's ``shapes``) is drawn only when configured."""
 #: Material packs ship auxiliary maps beside each texture (ufoai: ``_nm`` normal maps, ``_sm``
 #: specular and ``_gm`` gloss maps); they are not pictures of anything and are left out.
 MATERIAL_MAPS = ("*_nm.*", "*_sm.*", "*_gm.*")
@@ -50,6 +54,9 @@ class TextureConfig:
         exclude: ``fnmatch`` patterns of file names to leave out (default: the normal,
             specular and gloss maps of material packs).
         procedural_fraction: share of sequences using a procedural pattern instead.
+        procedural_kinds: the patterns drawn, each equally likely (default: noise, shapes,
+            grating, checker; ``poster`` adds large flat regions bounded by edges of either
+            polarity, which busy photographs rarely have; docs/notes/halos.md).
         crop_fraction: (min, max) side of the random crop relative to the image.
         low_range, high_range: ranges of the darkest / brightest linear intensity.
         gamma: decode ``(v/255) ** gamma`` (1.0 = ESIM's convention, 2.2 = sRGB-like).
@@ -64,6 +71,7 @@ class TextureConfig:
     test_fraction: float = 0.1
     exclude: tuple[str, ...] = MATERIAL_MAPS
     procedural_fraction: float = 0.25
+    procedural_kinds: tuple[str, ...] = PROCEDURAL
     crop_fraction: tuple[float, float] = (0.6, 1.0)
     low_range: tuple[float, float] = (0.02, 0.2)
     high_range: tuple[float, float] = (0.6, 1.0)
@@ -83,6 +91,10 @@ class TextureConfig:
             raise ValueError("test_fraction must be in (0, 1)")
         if not 0 <= self.procedural_fraction <= 1:
             raise ValueError("procedural_fraction must be in [0, 1]")
+        unknown = sorted(set(self.procedural_kinds) - set(PROCEDURAL_KINDS))
+        if not self.procedural_kinds or unknown:
+            raise ValueError(f"procedural_kinds must name some of {', '.join(PROCEDURAL_KINDS)}"
+                             f"{'; unknown: ' + ', '.join(unknown) if unknown else ''}")
         lo, hi = self.crop_fraction
         if not 0 < lo <= hi <= 1:
             raise ValueError("crop_fraction must satisfy 0 < min <= max <= 1")
@@ -216,7 +228,8 @@ def _base(entry: tuple[str, str]) -> str:
 
 
 def procedural(kind: str, size: int, rng: np.random.Generator) -> np.ndarray:
-    """float32[size, size] pattern in [0, 1]: smooth noise, shapes, gratings or checkers."""
+    """float32[size, size] pattern in [0, 1]: smooth noise, shapes, gratings, checkers or a
+    poster (:data:`PROCEDURAL_KINDS`)."""
     yy, xx = np.mgrid[0:size, 0:size].astype(np.float32)
     if kind == "noise":  # fractal value noise: random grids of doubling resolution, smoothly
         img = np.zeros((size, size), np.float32)  # upsampled, amplitudes falling by 0.6
@@ -237,6 +250,21 @@ def procedural(kind: str, size: int, rng: np.random.Generator) -> np.ndarray:
             else:
                 pts = np.array(c) + rng.integers(-r, r + 1, (int(rng.integers(3, 7)), 2))
                 cv2.fillPoly(img, [pts.astype(np.int32)], color, cv2.LINE_AA)
+    elif kind == "poster":  # a flat ground, a few flat shapes far apart, any levels
+        img = np.full((size, size), rng.uniform(0, 1), np.float32)
+        for _ in range(int(rng.integers(6, 20))):
+            c = (int(rng.integers(0, size)), int(rng.integers(0, size)))
+            r = int(rng.integers(size // 40, size // 12))
+            color = float(rng.uniform(0, 1))
+            if rng.random() < 0.5:
+                cv2.ellipse(img, c, (r, int(r * rng.uniform(0.4, 1))),
+                            float(rng.uniform(0, 180)), 0, 360, color, -1, cv2.LINE_AA)
+            else:  # a star or convex-ish polygon around the centre
+                n = int(rng.integers(3, 8))
+                angles = np.sort(rng.uniform(0, 2 * np.pi, n))
+                radii = r * rng.uniform(0.4, 1.0, n)
+                pts = np.array(c) + np.stack([radii * np.cos(angles), radii * np.sin(angles)], 1)
+                cv2.fillPoly(img, [pts.round().astype(np.int32)], color, cv2.LINE_AA)
     elif kind in ("grating", "checker"):
         theta = rng.uniform(0, np.pi)
         period = size / rng.uniform(6, 30)
@@ -248,7 +276,8 @@ def procedural(kind: str, size: int, rng: np.random.Generator) -> np.ndarray:
             img = ((np.floor(u) + np.floor(v)) % 2).astype(np.float32)
             img = cv2.GaussianBlur(img, (0, 0), 0.7)
     else:
-        raise ValueError(f"unknown procedural texture {kind!r}; choose from {PROCEDURAL}")
+        raise ValueError(f"unknown procedural texture {kind!r}; choose from "
+                         f"{PROCEDURAL_KINDS}")
     img = img.astype(np.float32)
     return (img - img.min()) / max(float(img.max() - img.min()), 1e-9)
 
@@ -295,7 +324,8 @@ class TextureSampler:
         h = max(16, int(round(w / aspect)))
         for _ in range(50):
             if rng.random() < cfg.procedural_fraction:
-                kind = PROCEDURAL[int(rng.integers(len(PROCEDURAL)))]
+                kinds = cfg.procedural_kinds
+                kind = kinds[int(rng.integers(len(kinds)))]
                 img = normalised(self._crop(procedural(kind, 1024, rng), aspect, rng))
                 name = f"procedural:{kind}"
                 break

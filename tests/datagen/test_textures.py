@@ -9,7 +9,14 @@ import cv2
 import numpy as np
 import pytest
 
-from datagen.textures import PROCEDURAL, ImageLibrary, TextureConfig, TextureSampler, procedural
+from datagen.textures import (
+    PROCEDURAL,
+    PROCEDURAL_KINDS,
+    ImageLibrary,
+    TextureConfig,
+    TextureSampler,
+    procedural,
+)
 
 
 def write_png(path, rng, hw=(60, 90)):
@@ -54,11 +61,44 @@ def test_missing_and_empty_sources_are_clear_errors(tmp_path):
         ImageLibrary(tmp_path)
 
 
-@pytest.mark.parametrize("kind", PROCEDURAL)
+@pytest.mark.parametrize("kind", PROCEDURAL_KINDS)
 def test_procedural_textures(kind):
     img = procedural(kind, 128, np.random.default_rng(3))
     assert img.shape == (128, 128) and img.dtype == np.float32
     assert img.min() == 0.0 and img.max() == pytest.approx(1.0) and img.std() > 0.05
+
+
+def flat_share(img: np.ndarray, radius: int = 8) -> float:
+    """Share of pixels whose (2 radius + 1)^2 neighbourhood is constant."""
+    k = np.ones((2 * radius + 1,) * 2, np.uint8)
+    spread = cv2.dilate(img, k) - cv2.erode(img, k)
+    return float((spread < 1e-6).mean())
+
+
+def test_posters_are_mostly_flat_with_edges_of_both_polarities():
+    grounds_above = []
+    for seed in range(12):
+        img = procedural("poster", 512, np.random.default_rng(seed))
+        assert flat_share(img) > 0.5  # large event-free regions, unlike the other kinds
+        levels, counts = np.unique(img.round(3), return_counts=True)
+        ground = levels[counts.argmax()]
+        grounds_above.append(ground > np.median(img[np.abs(img - ground) > 0.05]))
+    assert 0 < sum(grounds_above) < len(grounds_above)  # light and dark grounds both occur
+    for kind in PROCEDURAL:  # the default kinds are busy
+        if kind != "shapes":
+            assert flat_share(procedural(kind, 512, np.random.default_rng(0))) < 0.5
+
+
+def test_procedural_kinds_are_chosen_and_checked():
+    sampler = TextureSampler(TextureConfig(procedural_fraction=1.0, procedural_kinds=("poster",)))
+    rng = np.random.default_rng(0)
+    assert {sampler.sample(rng, 1.0, 256)[1] for _ in range(4)} == {"procedural:poster"}
+    with pytest.raises(ValueError, match="unknown: dots"):
+        TextureConfig(procedural_kinds=("poster", "dots"))
+    with pytest.raises(ValueError, match="procedural_kinds must name"):
+        TextureConfig(procedural_kinds=())
+    # the default draws exactly as before the option existed: same kinds, same order
+    assert TextureConfig().procedural_kinds == ("noise", "shapes", "grating", "checker")
 
 
 def test_sampled_textures_have_the_requested_shape_and_range():
