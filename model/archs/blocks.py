@@ -97,13 +97,14 @@ def anti_grid_taps(scale: int) -> torch.Tensor:
 class ContextBranch(nn.Module):
     """Coarse context added to LR features: ``x + out(cat_f up(path_f(avgpool_f(x))))``.
 
-    The network's convolutions see about 25 LR pixels around each output pixel, so a flat,
+    The shipped x2 network's convolutions see about +-18 LR pixels around each output
+    pixel (measured: the farthest input pixel with a non-zero gradient), so a flat,
     event-free region wider than that is filled with a constant prior rather than the level
     its bounding edges imply (the halos of docs/notes/halos.md). Each path averages the
     features over ``f x f`` cells (:func:`cell_means`), runs two 3x3 convolutions there
     (each seeing ``3 f`` pixels), and is brought back by bilinear interpolation; a 1x1
     convolution mixes the paths into a residual. With factors (4, 16) an output pixel sees
-    about +-50 LR pixels for little compute.
+    about +-63 LR pixels (measured on the x2 CPU variant) for little compute.
     That last convolution starts at zero, so a network warm-started from one without the
     branch computes exactly what it did until training moves it.
     """
