@@ -7,8 +7,10 @@ and carries most of the rounding error (measured on held-out training samples, s
 docs/benchmarks.md):
 - the first convolution on each input (stacks and flows are narrow, signed and
   heavy-tailed: 8 bits over the flow range would be coarse), and
-- the last two convolutions (the lift to the output resolution and the image itself:
-  their rounding lands directly on the output).
+- the last convolution (the image itself: its rounding lands directly on the output; at
+  the output resolution, narrow, so it costs little). The sub-pixel lift before it is
+  quantised: it is 2 (x2) to 8 (x4) times an LR convolution's work, and keeping it in
+  float32 cost x4 more time than it saved in quality (docs/benchmarks.md).
 
 Calibration inputs come from the simulator, not from the data the user reconstructs, so one
 quantised graph serves every recording and is exported once per weights (the cache:
@@ -37,8 +39,9 @@ from model.inference import graph_export
 
 log = logging.getLogger(__name__)
 
-CALIBRATION_VERSION = 1
-"""Raised when the calibration recipe below changes (it is part of the cache key)."""
+CALIBRATION_VERSION = 2
+"""Raised when the calibration recipe or what stays float32 changes (it is part of the cache
+key). 2: the lift is quantised too."""
 
 
 @dataclass(frozen=True)
@@ -117,8 +120,8 @@ def calibration_inputs(net: E2SRI, calibration: Calibration | None = None
 
 def kept_in_float(model) -> list[str]:
     """Names of the convolutions of an OpenVINO graph left in float32: every convolution
-    with no convolution upstream (the first on each input) and the last two in topological
-    order (the lift and the image)."""
+    with no convolution upstream (the first on each input) and the last in topological
+    order (the image)."""
     convs = {"Convolution", "GroupConvolution", "ConvolutionBackpropData"}
     after_conv: dict[str, bool] = {}  # op name -> a convolution lies on some path into it
     ordered = []
@@ -130,7 +133,7 @@ def kept_in_float(model) -> list[str]:
         if op.get_type_name() in convs:
             ordered.append((op.get_friendly_name(), seen))
     first = [name for name, seen in ordered if not seen]
-    last = [name for name, _ in ordered[-2:]]
+    last = [name for name, _ in ordered[-1:]]
     return list(dict.fromkeys(first + last))
 
 
