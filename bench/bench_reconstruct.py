@@ -2,8 +2,8 @@
 shipped models, and memory on long recordings.
 
 Run: .venv/bin/python bench/bench_reconstruct.py [--skip-latency] [--skip-engines]
-     [--skip-memory] [--frames 5] [--sizes 128x128,240x180,346x260]
-(smoke run: --skip-latency --skip-memory --sizes 128x128 --frames 1)
+     [--skip-memory] [--frames 5] [--rounds 3] [--sizes 128x128,240x180,346x260]
+(smoke run: --skip-latency --skip-memory --sizes 128x128 --frames 1 --rounds 1)
 Latency: full-size E2SRI (random weights; compute does not depend on them) for 3 and 7
 stacks at x2 and x4 on a 240x180 stream of synthetic events, ~7,900 events per stack (the
 paper's density). Reported per output frame and split into stacking (SBN from the event
@@ -13,9 +13,10 @@ Engines: the shipped x2 and x4 models (`reconstruct`'s default) through
 `Reconstructor.from_state` with each installed engine (`model/inference/engines.py`), at
 128x128, 240x180 and 346x260 with the model's events per stack scaled by sensor area (as
 `reconstruct` does), on synthetic events: median ms per frame over `--frames` frames (after
-one warm-up frame) for stacking (`stacks_at`), flow and network, and the largest
-difference of the output image in [0, 1] from torch's on the same stacks. Exports land in
-the user's cache (see docs/evaluation.md), made before timing.
+one warm-up frame, in each of `--rounds` rounds over the engines) for stacking
+(`stacks_at`), flow and network, and the largest difference of the output image in [0, 1]
+from torch's on the same stacks. Exports land in the user's cache (see docs/evaluation.md),
+made before timing.
 Memory: `reconstruct` as a child process on an event_utils HDF5 file of 1 million and of
 100 million events (written here in chunks), 5 outputs spread over each file with the small
 config; peak RSS from getrusage of the child.
@@ -73,53 +74,62 @@ def latency(scale: int, n_stacks: int) -> dict[str, float]:
     return {"stacking": stacking, **timing}
 
 
-def engine_frames(model: Reconstructor, events: Events, frames: int
-                  ) -> tuple[dict[str, float], list[np.ndarray]]:
-    """(median seconds per frame of stacking, flow and network, the output images) for
-    ``frames`` outputs at the ends of consecutive stacks, after one warm-up output."""
-    per, half = model.stacks.events_per_stack, model.net.config.n_stacks // 2
-    window = EventWindow(iter([events]), events.sensor_hw)
-    times: dict[str, list[float]] = {"stacking": [], "flow": [], "network": []}
-    images = []
-    for k in range(frames + 1):
-        t = int(events.t_ns[(half + 1 + k) * per - 1])
-        start = time.perf_counter()
-        given = model.stacks_at(window, t)
-        stacking = time.perf_counter() - start
-        image, timing = model.run(given.stacks, None)
-        if k:  # the first output warms up caches and allocators
-            for key, v in {"stacking": stacking, **timing}.items():
-                times[key].append(v)
-            images.append(image)
-    return {k: float(np.median(v)) for k, v in times.items()}, images
+def engine_frames(models: list[Reconstructor], events: Events, frames: int, rounds: int
+                  ) -> list[tuple[dict[str, float], list[np.ndarray]]]:
+    """Per model: (median seconds per frame of stacking, flow and network, the output
+    images of the first round) over ``rounds`` rounds. In a round each model in turn makes
+    one warm-up output and then ``frames`` outputs at the ends of consecutive stacks, as a
+    user's run would; the rounds spread a drift in the machine's speed (a shared VM's varies
+    by tens of percent within minutes) over every engine alike. Taking turns frame by frame
+    instead slowed whichever engine came next (the other engines' thread pools spin for a
+    while after a call, and caches go cold)."""
+    per, half = models[0].stacks.events_per_stack, models[0].net.config.n_stacks // 2
+    times = [{"stacking": [], "flow": [], "network": []} for _ in models]
+    images: list[list[np.ndarray]] = [[] for _ in models]
+    for r in range(rounds):
+        for model, spent, out in zip(models, times, images):
+            window = EventWindow(iter([events]), events.sensor_hw)
+            for k in range(frames + 1):
+                t = int(events.t_ns[(half + 1 + k) * per - 1])
+                start = time.perf_counter()
+                given = model.stacks_at(window, t)
+                stacking = time.perf_counter() - start
+                image, timing = model.run(given.stacks, None)
+                if k:  # the first output warms up caches and allocators
+                    for key, v in {"stacking": stacking, **timing}.items():
+                        spent[key].append(v)
+                    if not r:
+                        out.append(image)
+    return [({k: float(np.median(v)) for k, v in spent.items()}, out)
+            for spent, out in zip(times, images)]
 
 
-def engine_rows(sizes: list[tuple[int, int]], frames: int) -> None:
+def engine_rows(sizes: list[tuple[int, int]], frames: int, rounds: int) -> None:
     from model.inference.engines import ENGINES, installed
     from model.inference.pretrained import shipped_checkpoint
 
     available = [e for e in ENGINES if installed(e)]
     print("| sensor | scale | engine | events per stack | stacking ms | flow ms | network ms "
-          "| total ms | network vs torch | max abs diff vs torch |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "| total ms | network vs torch | frame vs torch | max abs diff vs torch |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for hw in sizes:
         for scale in (2, 4):
             ckpt = shipped_checkpoint(scale)
             state = checkpoint.load(ckpt)
-            reference, torch_ms = None, None
-            for engine in available:
-                model = Reconstructor.from_state(state, str(ckpt), hw, device="cpu",
-                                                 engine=engine)
-                per = model.stacks.events_per_stack
-                events = synthetic((model.net.config.n_stacks + frames + 2) * per, 1, hw=hw)
-                t, images = engine_frames(model, events, frames)
-                if reference is None:  # torch comes first in ENGINES
-                    reference, torch_ms = images, t["network"]
+            models = [Reconstructor.from_state(state, str(ckpt), hw, device="cpu",
+                                               engine=engine) for engine in available]
+            per = models[0].stacks.events_per_stack
+            events = synthetic((models[0].net.config.n_stacks + frames + 2) * per, 1, hw=hw)
+            rows = engine_frames(models, events, frames, rounds)
+            (reference_t, reference) = rows[0]  # torch comes first in ENGINES
+            for model, (t, images) in zip(models, rows):
                 diff = max(float(np.abs(a - b).max()) for a, b in zip(images, reference))
                 print(f"| {hw[1]}x{hw[0]} | x{scale} | {model.engine_name} | {per:,} | "
                       f"{1e3 * t['stacking']:.1f} | {1e3 * t['flow']:.1f} | "
                       f"{1e3 * t['network']:.1f} | {1e3 * sum(t.values()):.1f} | "
-                      f"{torch_ms / t['network']:.2f}x | {diff:.1e} |", flush=True)
+                      f"{reference_t['network'] / t['network']:.2f}x | "
+                      f"{sum(reference_t.values()) / sum(t.values()):.2f}x | {diff:.1e} |",
+                      flush=True)
 
 
 def write_h5(path: Path, n: int, chunk: int = 5_000_000) -> None:
@@ -170,7 +180,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--skip-latency", action="store_true")
     parser.add_argument("--skip-engines", action="store_true")
     parser.add_argument("--skip-memory", action="store_true")
-    parser.add_argument("--frames", type=int, default=5, help="timed frames per engine row")
+    parser.add_argument("--frames", type=int, default=5,
+                        help="timed frames per engine row and round")
+    parser.add_argument("--rounds", type=int, default=3,
+                        help="rounds over the engines (a median over all of them)")
     parser.add_argument("--sizes", default="128x128,240x180,346x260",
                         help="sensor sizes (WxH) of the engine rows")
     args = parser.parse_args(argv)
@@ -190,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.skip_engines:
         print()
         sizes = [tuple(int(v) for v in size.split("x"))[::-1] for size in args.sizes.split(",")]
-        engine_rows(sizes, args.frames)
+        engine_rows(sizes, args.frames, args.rounds)
     if not args.skip_memory:
         print("\n| events in file | file MB | recording s | last output at s | peak RSS MB | "
               "seconds |")
