@@ -121,7 +121,7 @@ def engine_rows(sizes: list[tuple[int, int]], frames: int, rounds: int) -> None:
             per = models[0].stacks.events_per_stack
             events = synthetic((models[0].net.config.n_stacks + frames + 2) * per, 1, hw=hw)
             rows = engine_frames(models, events, frames, rounds)
-            (reference_t, reference) = rows[0]  # torch comes first in ENGINES
+            reference_t, reference = rows[0]  # torch comes first in ENGINES
             for model, (t, images) in zip(models, rows):
                 diff = max(float(np.abs(a - b).max()) for a, b in zip(images, reference))
                 print(f"| {hw[1]}x{hw[0]} | x{scale} | {model.engine_name} | {per:,} | "
