@@ -186,9 +186,10 @@ def evaluate_main(argv: list[str] | None = None) -> int:
                         "them, without it appears in the figure only")
     p.add_argument("--sensor-size", help="WxH of --recording files that do not store it")
     p.add_argument("--out", required=True, help="folder for metrics.md/.csv and figure.png")
-    p.add_argument("--normalize", choices=["affine", "minmax", "evreal", "none"],
+    p.add_argument("--normalize", choices=["affine", "minmax", "evreal", "none", "observed"],
                    default="affine", help="intensity normalisation before the metrics "
-                   "(model/inference/evaluate.py; evreal: EVREAL's standard protocol)")
+                   "(model/inference/evaluate.py; evreal: EVREAL's standard protocol; "
+                   "observed: the affine fit and the metrics where events fired)")
     p.add_argument("--every", type=int, default=1, help="every k-th frame")
     p.add_argument("--max-frames", type=int, help="per sequence")
     p.add_argument("--no-baselines", action="store_true")

@@ -17,7 +17,9 @@ event-only methods from ~25 dB to 8-11 dB); ``evreal`` is EVREAL's standard prot
 trained to predict it, and the complementary filter, anchored to APS frames) are clipped to
 [0, 1] and compared as they are, while methods without one (HF, direct integration) have
 their output stretched by its 1st..99th percentiles; the target is never changed. ``none``
-compares raw values.
+compares raw values. ``observed`` scores only the observed region, where the output's
+events fired with spatial support (:mod:`model.inference.observed`), with the affine fit
+made inside it: what event-only methods can know, apart from what no event saw.
 
 Scoring real recordings: events per stack are chosen per recording
 (:mod:`model.inference.stack_size`; the active-pixel rule by default for real files, the
@@ -54,6 +56,14 @@ from model.archs.e2sri_arch import mode_of
 from model.data.dataset import index_samples
 from model.inference.baselines import EventFilter, FilterConfig, upsample
 from model.inference.exposure import boundary_times, exposure_average
+from model.inference.observed import (
+    MIN_PIXELS,
+    affine_in,
+    masked_metrics,
+    support_mask,
+    upscale_mask,
+)
+from model.inference.references import REFERENCES, reference_image
 from model.inference.reconstruct import OutputPlan, Reconstructor, output_times
 from model.inference.stack_size import Rule, StackChoice, measure_activity, resolve_rule
 from model.inference.temporal import reference_motion, temporally_consistent, warp_error
@@ -72,7 +82,7 @@ class EvalOptions:
     (:mod:`model.inference.stack_size`); ``exposure_average``: average our outputs over
     each APS frame's exposure window where the file stores it."""
 
-    normalize: Literal["affine", "minmax", "evreal", "none"] = "affine"
+    normalize: Literal["affine", "minmax", "evreal", "none", "observed"] = "affine"
     every: int = 1
     max_frames: int | None = None
     baselines: tuple[str, ...] = BASELINES
@@ -82,6 +92,7 @@ class EvalOptions:
     stack_rule: Rule = "auto"
     events_per_stack: int | None = None
     exposure_average: bool = False
+    references: bool = False
 
 
 #: Methods whose output has an absolute intensity (compared as they are under ``evreal``).
@@ -121,7 +132,9 @@ def frame_metrics(pred: np.ndarray, gt: np.ndarray, lpips_net: LPIPS | None) -> 
 class SequenceOutputs:
     """Every method's images at the evaluated frames, with the targets; ``stack_choice``:
     the events per stack used; ``averaged``: per frame, how many of our outputs were
-    averaged over its exposure (empty when not averaging)."""
+    averaged over its exposure (empty when not averaging); ``support``: per frame, the
+    observed region at the sensor size (:func:`model.inference.observed.support_mask` of
+    the events behind our output at the frame's time)."""
 
     name: str
     images: dict[str, list[np.ndarray]]
@@ -130,6 +143,7 @@ class SequenceOutputs:
     event_images: list[np.ndarray]
     stack_choice: StackChoice | None = None
     averaged: list[int] = field(default_factory=list)
+    support: list[np.ndarray] = field(default_factory=list)
 
 
 class ModelPool:
@@ -203,6 +217,7 @@ def run_sequence(recording: Recording, model: Reconstructor, frame_ids: list[int
         if hr_frames is not None:
             out.hr_targets.append(hr_frames[pos])
         out.event_images.append(event_image(given.events.slice(*given.central)))
+        out.support.append(support_mask(given.events))
     return out
 
 
@@ -276,18 +291,71 @@ def score(seq: SequenceOutputs, scale: int, options: EvalOptions, lpips_net) -> 
                 preds = [_down(im, scale) for im in images] if proto == "lr" else images
             else:  # baselines work at the sensor size
                 preds = [upsample(im, scale) for im in images] if proto == "hr" else images
-            pairs = [normalized(p, g, options.normalize, method in ABSOLUTE)
-                     for p, g in zip(preds, targets)]
-            per_frame = [frame_metrics(p, g, lpips_net) for p, g in pairs]
+            if options.normalize == "observed":
+                pairs, per_frame = _observed(seq, preds, targets, scale if proto == "hr"
+                                             else 1, lpips_net)
+            else:
+                pairs = [normalized(p, g, options.normalize, method in ABSOLUTE)
+                         for p, g in zip(preds, targets)]
+                per_frame = [frame_metrics(p, g, lpips_net) for p, g in pairs]
             row = {"sequence": seq.name, "protocol": proto, "method": method,
-                   "frames": len(preds)}
-            for key in per_frame[0]:
+                   "frames": len(per_frame)}
+            for key in (per_frame[0] if per_frame else ()):
                 row[key] = float(np.mean([m[key] for m in per_frame]))
+            if options.normalize == "observed":  # E_warp is a whole-frame measure
+                rows.append(row)
+                continue
             if motion is None:
                 motion = reference_motion([g for _, g in pairs])
             row["ewarp"] = warp_error([p for p, _ in pairs], motion=motion)
             rows.append(row)
+        if options.references:
+            rows += _reference_rows(seq, proto, targets, scale if proto == "hr" else 1,
+                                    options, lpips_net)
     return rows
+
+
+def _reference_rows(seq: SequenceOutputs, proto: str, targets: list[np.ndarray],
+                    scale: int, options: EvalOptions, lpips_net) -> list[dict]:
+    """Rows of the information-free references (:mod:`model.inference.references`),
+    compared as they are: under ``observed`` made at the region's mean level and scored
+    inside it, otherwise at the frame's mean level and scored over the frame."""
+    rows = []
+    for kind in REFERENCES:
+        per_frame = []
+        for i, g in enumerate(targets):
+            if options.normalize != "observed":
+                per_frame.append(frame_metrics(reference_image(kind, g, i), g, lpips_net))
+                continue
+            mask = upscale_mask(seq.support[i], scale) if scale > 1 else seq.support[i]
+            if int(mask.sum()) >= MIN_PIXELS:
+                per_frame.append(masked_metrics(reference_image(kind, g, i, mask), g, mask,
+                                                lpips_net))
+        row = {"sequence": seq.name, "protocol": proto, "method": kind,
+               "frames": len(per_frame)}
+        for key in (per_frame[0] if per_frame else ()):
+            row[key] = float(np.mean([m[key] for m in per_frame]))
+        rows.append(row)
+    return rows
+
+
+def _observed(seq: SequenceOutputs, preds: list[np.ndarray], targets: list[np.ndarray],
+              scale: int, lpips_net) -> tuple[list, list[dict]]:
+    """(pairs, metrics) of the frames whose observed region is large enough, the
+    prediction fitted inside the region (``observed`` normalisation)."""
+    if len(seq.support) != len(targets):
+        raise ValueError(f"{seq.name}: no observed regions to score under 'observed'")
+    pairs, per_frame = [], []
+    for p, g, region in zip(preds, targets, seq.support):
+        mask = upscale_mask(region, scale) if scale > 1 else region
+        if int(mask.sum()) < 2:
+            continue
+        mapped = affine_in(p, g, mask)
+        found = masked_metrics(mapped, g, mask, lpips_net)
+        if found is not None:
+            pairs.append((mapped, g))
+            per_frame.append(found)
+    return pairs, per_frame
 
 
 def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
@@ -354,7 +422,7 @@ def average_rows(rows: list[dict]) -> list[dict]:
         sel = [r for r in rows if r["protocol"] == proto and r["method"] == method]
         avg = {"sequence": "average", "protocol": proto, "method": method,
                "frames": sum(r["frames"] for r in sel)}
-        for k in ("psnr", "ssim", "mse", "lpips", "ewarp"):
+        for k in ("psnr", "ssim", "mse", "lpips", "ewarp", "coverage"):
             vals = [r[k] for r in sel if k in r and np.isfinite(r[k])]
             if vals:
                 avg[k] = float(np.mean(vals))
@@ -432,6 +500,8 @@ def write_figure(sequences: list[SequenceOutputs], path: Path, scale: int) -> Pa
         else:  # against APS frames at the sensor size
             target, ours = seq.lr_targets[k], _down(ours, scale)
         row = [(seq.event_images[k], f"events: {seq.name}")]
+        if seq.support and target is not None:
+            row.append((gray_to_rgb(seq.support[k].astype(np.float32)), "observed region"))
         cy, cx = _detail_centre(target if target is not None else ours)
         panels = ([(base, "HF")] if base is not None else []) + [(ours, "ours")]
         if target is not None:

@@ -4,9 +4,11 @@ Layout of the folder (``../shared/real_events`` beside the repository by default
 ``davis346/*.aedat4`` (events and APS frames: scored) and ``ecd_snippets/*/events.txt``
 (240x180 events only: shown in the figure, not scored). Each recording is run once
 (:func:`model.inference.evaluate.recording_outputs`, events per stack chosen for it) and
-the outputs are scored under two normalisations, EVREAL's protocol and the affine fit
-(:func:`model.inference.evaluate.score`), into one table (``real_benchmark.md`` and
-``.csv``) and one figure (``real_benchmark.png``).
+the outputs are scored under three normalisations, EVREAL's protocol, the affine fit and
+the affine fit inside the observed region (:func:`model.inference.evaluate.score`,
+:mod:`model.inference.observed`), into one table (``real_benchmark.md`` and ``.csv``) and
+one figure (``real_benchmark.png``). Beside the methods, two images with no information
+about the recording (:mod:`model.inference.references`) show each metric's floor.
 """
 
 from __future__ import annotations
@@ -29,11 +31,12 @@ from model.inference.evaluate import (
     write_figure,
 )
 from model.inference.exposure import exposure_stats
+from model.inference.references import SALT_AMPLITUDE, SALT_FRACTION
 from model.losses.lpips import LPIPS
 
 ECD_SENSOR_HW = (180, 240)
-NORMALIZATIONS = ("evreal", "affine")
-METRICS = ("psnr", "ssim", "mse", "lpips", "ewarp")
+NORMALIZATIONS = ("evreal", "affine", "observed")
+METRICS = ("psnr", "ssim", "mse", "lpips", "ewarp", "coverage")
 
 
 @dataclass(frozen=True)
@@ -134,7 +137,7 @@ def score_all(sequences: list[SequenceOutputs], scale: int, options: EvalOptions
     lpips_net = LPIPS()
     rows = []
     for norm in NORMALIZATIONS:
-        opts = replace(options, normalize=norm)
+        opts = replace(options, normalize=norm, references=True)
         part = [r for s in sequences if s.lr_targets for r in score(s, scale, opts, lpips_net)]
         if len({r["sequence"] for r in part}) > 1:
             part += average_rows(part)
@@ -162,8 +165,15 @@ def benchmark_markdown(rows: list[dict], reports: list[RecordingReport],
     lines += [f"Model `{ckpt}`, engine `{engine}`. Output at the sensor size (ours "
               f"area-downsampled) against each APS frame but the first; exposure averaging "
               f"of ours: {averaging} (baselines at the frame's timestamp). PSNR dB, SSIM, MSE, "
-              f"LPIPS (alex), E_warp x1e-3; `evreal`: EVREAL's protocol, `affine`: "
-              f"least-squares scale and offset per frame.", "", "Recordings:", ""]
+              f"LPIPS (alex), E_warp x1e-3, region: the share of the frame scored; "
+              f"`evreal`: EVREAL's protocol, `affine`: least-squares scale and offset per "
+              f"frame, `observed`: the affine fit and the metrics inside the region where the "
+              f"output's events fired with spatial support (static background that never "
+              f"fired is left out). `flat` and `salt` carry no information about the "
+              f"recording, compared as they are: a grey at the target's mean level (over the "
+              f"region under `observed`) and that grey with random dots (+-{SALT_AMPLITUDE}) "
+              f"on {100 * SALT_FRACTION:.1f}% of its pixels: the floors.", "",
+              "Recordings:", ""]
     for r in reports:
         line = f"- {r.name} ({'scored' if r.scored else 'figure only'}): events per stack " \
                f"{r.stacks}"
@@ -173,7 +183,7 @@ def benchmark_markdown(rows: list[dict], reports: list[RecordingReport],
             line += (f"; outputs averaged per frame: {min(r.averaged)}-{max(r.averaged)}")
         lines.append(line)
     lines += ["", "| recording | normalisation | method | frames | PSNR | SSIM | MSE | LPIPS "
-              "| E_warp |", "|---|---|---|---|---|---|---|---|---|"]
+              "| E_warp | region |", "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         cells = [f"{r[k]:.4f}" if k in r else "-" for k in METRICS]
         lines.append(f"| {r['sequence']} | {r['normalize']} | {r['method']} | {r['frames']} | "

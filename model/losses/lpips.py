@@ -163,7 +163,7 @@ class LPIPS(nn.Module):
                 x = nn.functional.max_pool2d(x, 3, 2)
         return out
 
-    def forward(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+    def _layer_maps(self, x: torch.Tensor, y: torch.Tensor) -> list[torch.Tensor]:
         if x.shape != y.shape or x.ndim != 4 or x.shape[1] not in (1, 3):
             raise ValueError(f"LPIPS needs two (B, 1|3, H, W) tensors of one shape, got "
                              f"{tuple(x.shape)} and {tuple(y.shape)}")
@@ -173,7 +173,22 @@ class LPIPS(nn.Module):
             x, y = x.expand(-1, 3, -1, -1), y.expand(-1, 3, -1, -1)
         x = ((2 * x - 1) - self.shift) / self.scale
         y = ((2 * y - 1) - self.shift) / self.scale
+        return [lin((_normalize(fx) - _normalize(fy)) ** 2)
+                for lin, fx, fy in zip(self.lins, self._taps(x), self._taps(y))]
+
+    def forward(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         total = 0
-        for lin, fx, fy in zip(self.lins, self._taps(x), self._taps(y)):
-            total = total + lin((_normalize(fx) - _normalize(fy)) ** 2).mean(dim=(2, 3))
+        for m in self._layer_maps(x, y):
+            total = total + m.mean(dim=(2, 3))
         return total[:, 0]
+
+    def distance_map(self, x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
+        """``(B, 1, H, W)``: where the distance lies (the reference implementation's
+        ``spatial=True``): each layer's map resized bilinearly to the image and summed.
+        Its mean is the distance up to the resizing (within about 1%)."""
+        size = x.shape[-2:]
+        total = 0
+        for m in self._layer_maps(x, y):
+            total = total + nn.functional.interpolate(m, size=size, mode="bilinear",
+                                                      align_corners=False)
+        return total

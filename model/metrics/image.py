@@ -37,8 +37,10 @@ def _gaussian_taps(size: int = 11, sigma: float = 1.5, device=None) -> torch.Ten
     return g / g.sum()
 
 
-def ssim(x: torch.Tensor, y: torch.Tensor, data_range: float = 1.0) -> torch.Tensor:
-    """Structural similarity, mean over channels and window positions."""
+def ssim_map(x: torch.Tensor, y: torch.Tensor, data_range: float = 1.0) -> torch.Tensor:
+    """Structural similarity at every position where the 11x11 window fits:
+    ``(B, C, H - 10, W - 10)`` float64, entry ``[i, j]`` for the window centred on pixel
+    ``(i + 5, j + 5)``."""
     _check(x, y)
     if min(x.shape[-2:]) < 11:
         raise ValueError(f"SSIM needs images of at least 11x11, got {tuple(x.shape[-2:])}")
@@ -53,8 +55,12 @@ def ssim(x: torch.Tensor, y: torch.Tensor, data_range: float = 1.0) -> torch.Ten
     mx, my, xx, yy, xy = z.split(c, dim=1)
     vx, vy, cxy = xx - mx**2, yy - my**2, xy - mx * my
     c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
-    s = ((2 * mx * my + c1) * (2 * cxy + c2)) / ((mx**2 + my**2 + c1) * (vx + vy + c2))
-    return s.mean(dim=(1, 2, 3)).float()
+    return ((2 * mx * my + c1) * (2 * cxy + c2)) / ((mx**2 + my**2 + c1) * (vx + vy + c2))
+
+
+def ssim(x: torch.Tensor, y: torch.Tensor, data_range: float = 1.0) -> torch.Tensor:
+    """Structural similarity, mean over channels and window positions."""
+    return ssim_map(x, y, data_range).mean(dim=(1, 2, 3)).float()
 
 
 def psnr_from_mse(value: float, data_range: float = 1.0) -> float:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
 from model.cli import evaluate_main
 from model.inference.evaluate import normalized, temporally_consistent, warp_error
@@ -116,3 +117,31 @@ def test_without_baselines_the_figure_has_no_hf_panels(tiny_shards, tiny_checkpo
     a = cv2.imread(str(tmp_path / "b" / "figure.png"))
     b = cv2.imread(str(tmp_path / "n" / "figure.png"))
     assert b is not None and b.shape[0] == a.shape[0] and b.shape[1] < a.shape[1]  # 2 fewer
+
+
+def test_observed_scores_equal_the_affine_ones_when_every_pixel_is_observed(
+        tiny_shards, tiny_checkpoint, tmp_path, monkeypatch):
+    """Wiring of the ``observed`` normalisation (model/inference/observed.py): with a region
+    covering the whole frame its fit and metrics are the affine protocol's, at HR and LR."""
+    from model.inference import evaluate as ev
+
+    opts = dict(baselines=("hf",), temporal=False, max_frames=2)
+    real = ev.evaluate(tiny_checkpoint, tmp_path / "o", tiny_shards, split="all",
+                       options=ev.EvalOptions(normalize="observed", **opts))
+    assert {r["protocol"] for r in real} == {"hr", "lr"}
+    assert all("ewarp" not in r for r in real)
+    assert all(0 < r["coverage"] <= 1 for r in real if r["frames"])
+    monkeypatch.setattr(ev, "support_mask",
+                        lambda events: np.ones(events.sensor_hw, bool))
+    everywhere = ev.evaluate(tiny_checkpoint, tmp_path / "w", tiny_shards, split="all",
+                             options=ev.EvalOptions(normalize="observed", **opts))
+    affine = ev.evaluate(tiny_checkpoint, tmp_path / "a", tiny_shards, split="all",
+                         options=ev.EvalOptions(normalize="affine", **opts))
+    assert len(everywhere) == len(affine)
+    for w, a in zip(everywhere, affine):
+        assert (w["sequence"], w["protocol"], w["method"], w["frames"]) == \
+            (a["sequence"], a["protocol"], a["method"], a["frames"])
+        assert w["coverage"] == 1.0
+        assert w["psnr"] == pytest.approx(a["psnr"], abs=1e-3)
+        assert w["ssim"] == pytest.approx(a["ssim"], abs=1e-5)
+        assert w["lpips"] == pytest.approx(a["lpips"], rel=0.03)

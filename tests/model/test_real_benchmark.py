@@ -51,12 +51,22 @@ def test_the_benchmark_writes_one_table_and_one_figure(real_folder, tiny_checkpo
     assert "davis346/tiny (scored): events per stack" in table and "(active:" in table
     assert "APS: 3 frames every 400.0 ms, exposure 20.000 ms" in table
     assert "ecd/snip (figure only)" in table
-    for norm in ("evreal", "affine"):
-        for method in ("ours", "hf", "direct", "complementary", "ours+tc"):
+    methods = ("ours", "hf", "direct", "complementary", "ours+tc", "flat", "salt")
+    for norm in ("evreal", "affine", "observed"):
+        for method in methods:
             assert f"| davis346/tiny | {norm} | {method} | 2 |" in table
     rows = list(csv.DictReader((out / "real_benchmark.csv").open()))
-    assert {r["normalize"] for r in rows} == {"evreal", "affine"} and len(rows) == 10
+    assert {r["normalize"] for r in rows} == {"evreal", "affine", "observed"}
+    assert len(rows) == 3 * len(methods)
     assert all(np.isfinite(float(r["psnr"])) for r in rows)
+    observed = [r for r in rows if r["normalize"] == "observed"]
+    assert all(0 < float(r["coverage"]) <= 1 and r["ewarp"] == "" for r in observed)
+    assert all(r["coverage"] == "" for r in rows if r["normalize"] != "observed")
+    # the flat floor is what the affine fit makes of a featureless image: the same scores
+    by = {(r["normalize"], r["method"]): r for r in rows}
+    for key in ("psnr", "ssim"):
+        assert float(by["affine", "flat"][key]) == pytest.approx(
+            float(by["evreal", "flat"][key]), abs=1e-4)
     figure = cv2.imread(str(out / "real_benchmark.png"))
     assert figure is not None and figure.shape[0] > 200  # two rows: the AEDAT4, the snippet
 
