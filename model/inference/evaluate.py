@@ -489,6 +489,8 @@ def write_figure(sequences: list[SequenceOutputs], path: Path, scale: int) -> Pa
     """Per sequence, its middle frame: events | HF | ours | ground truth, each with a 4x
     zoomed crop where the ground truth has the most detail."""
     rows = []
+    with_region = any(s.support and (s.hr_targets is not None or s.lr_targets)
+                      for s in sequences)
     for seq in sequences:
         k = len(seq.images["ours"]) // 2
         ours = seq.images["ours"][k]
@@ -502,6 +504,8 @@ def write_figure(sequences: list[SequenceOutputs], path: Path, scale: int) -> Pa
         row = [(seq.event_images[k], f"events: {seq.name}")]
         if seq.support and target is not None:
             row.append((gray_to_rgb(seq.support[k].astype(np.float32)), "observed region"))
+        elif with_region:  # keep the columns aligned
+            row.append((np.full(seq.event_images[k].shape, 255, np.uint8), ""))
         cy, cx = _detail_centre(target if target is not None else ours)
         panels = ([(base, "HF")] if base is not None else []) + [(ours, "ours")]
         if target is not None:
