@@ -63,8 +63,8 @@ from model.inference.observed import (
     support_mask,
     upscale_mask,
 )
-from model.inference.references import REFERENCES, reference_image
 from model.inference.reconstruct import OutputPlan, Reconstructor, output_times
+from model.inference.references import REFERENCES, reference_image
 from model.inference.stack_size import Rule, StackChoice, measure_activity, resolve_rule
 from model.inference.temporal import reference_motion, temporally_consistent, warp_error
 from model.losses.lpips import LPIPS
@@ -486,8 +486,9 @@ def _detail_centre(img: np.ndarray) -> tuple[float, float]:
 
 
 def write_figure(sequences: list[SequenceOutputs], path: Path, scale: int) -> Path:
-    """Per sequence, its middle frame: events | HF | ours | ground truth, each with a 4x
-    zoomed crop where the ground truth has the most detail."""
+    """Per sequence, its middle frame: events | observed region (scored sequences) | HF |
+    ours | ground truth, each image with a 4x zoomed crop where the ground truth has the
+    most detail."""
     rows = []
     with_region = any(s.support and (s.hr_targets is not None or s.lr_targets)
                       for s in sequences)

@@ -3,8 +3,8 @@
 Under a static camera a static background never fires, so nothing event-based can know it;
 scoring the whole APS frame then measures how an image fills what no event saw. LPIPS
 rewards texture of any kind there: on the DAVIS346 street clip a flat image sprinkled with
-random dots scores better than every reconstruction (docs/benchmarks.md). The ``observed``
-normalisation scores only where events fired:
+random dots scores a better whole-frame LPIPS than every reconstruction under the affine
+fit (docs/benchmarks.md). The ``observed`` normalisation scores only where events fired:
 
 - the region: pixels that fired during the output's stacks with at least
   :data:`MIN_NEIGHBOURS` other fired pixels among their 8 neighbours (the spatial half of
