@@ -299,9 +299,7 @@ def score(seq: SequenceOutputs, scale: int, options: EvalOptions, lpips_net) -> 
                          for p, g in zip(preds, targets)]
                 per_frame = [frame_metrics(p, g, lpips_net) for p, g in pairs]
             row = {"sequence": seq.name, "protocol": proto, "method": method,
-                   "frames": len(per_frame)}
-            for key in (per_frame[0] if per_frame else ()):
-                row[key] = float(np.mean([m[key] for m in per_frame]))
+                   "frames": len(per_frame), **_mean_metrics(per_frame)}
             if options.normalize == "observed":  # E_warp is a whole-frame measure
                 rows.append(row)
                 continue
@@ -331,12 +329,16 @@ def _reference_rows(seq: SequenceOutputs, proto: str, targets: list[np.ndarray],
             if int(mask.sum()) >= MIN_PIXELS:
                 per_frame.append(masked_metrics(reference_image(kind, g, i, mask), g, mask,
                                                 lpips_net))
-        row = {"sequence": seq.name, "protocol": proto, "method": kind,
-               "frames": len(per_frame)}
-        for key in (per_frame[0] if per_frame else ()):
-            row[key] = float(np.mean([m[key] for m in per_frame]))
-        rows.append(row)
+        rows.append({"sequence": seq.name, "protocol": proto, "method": kind,
+                     "frames": len(per_frame), **_mean_metrics(per_frame)})
     return rows
+
+
+def _mean_metrics(per_frame: list[dict]) -> dict:
+    """Each metric's mean over the frames that have it (``invented`` needs enough
+    unobserved pixels)."""
+    keys = dict.fromkeys(k for m in per_frame for k in m)
+    return {k: float(np.mean([m[k] for m in per_frame if k in m])) for k in keys}
 
 
 def _observed(seq: SequenceOutputs, preds: list[np.ndarray], targets: list[np.ndarray],
@@ -422,7 +424,7 @@ def average_rows(rows: list[dict]) -> list[dict]:
         sel = [r for r in rows if r["protocol"] == proto and r["method"] == method]
         avg = {"sequence": "average", "protocol": proto, "method": method,
                "frames": sum(r["frames"] for r in sel)}
-        for k in ("psnr", "ssim", "mse", "lpips", "ewarp", "coverage"):
+        for k in ("psnr", "ssim", "mse", "lpips", "ewarp", "coverage", "invented"):
             vals = [r[k] for r in sel if k in r and np.isfinite(r[k])]
             if vals:
                 avg[k] = float(np.mean(vals))

@@ -13,7 +13,11 @@ fit (docs/benchmarks.md). The ``observed`` normalisation scores only where event
   a reconstruction decides what lies on either side;
 - the prediction mapped by the least-squares scale and offset fitted inside the region;
 - PSNR and MSE over the region's pixels, SSIM averaged over the windows centred in it,
-  LPIPS's distance map (:meth:`model.losses.lpips.LPIPS.distance_map`) averaged over it.
+  LPIPS's distance map (:meth:`model.losses.lpips.LPIPS.distance_map`) averaged over it;
+- ``invented``: what the image draws where no event fired, the share of the pixels outside
+  the region whose (fitted) value is more than :data:`INVENTED_STEP` away from the median
+  of those pixels. 0 for a flat fill; an image that paints texture, clouds or blobs over a
+  static background scores high.
 """
 
 from __future__ import annotations
@@ -32,6 +36,9 @@ MIN_NEIGHBOURS = 2
 RADIUS = 5
 #: Frames whose region covers fewer pixels than this are not scored under ``observed``.
 MIN_PIXELS = 64
+#: Distance from the unobserved pixels' median level (target intensity, after the fit) that
+#: counts as drawn structure: 0.04, about 10 grey levels of 255.
+INVENTED_STEP = 0.04
 
 
 def support_mask(events: Events, radius: int = RADIUS,
@@ -83,4 +90,13 @@ def masked_metrics(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray,
         with torch.inference_mode():
             dmap = lpips_net.distance_map(p, g)[0, 0].numpy()
         out["lpips"] = float(dmap[mask].mean())
+    if int((~mask).sum()) >= MIN_PIXELS:
+        out["invented"] = invented_share(pred, mask)
     return out
+
+
+def invented_share(pred: np.ndarray, mask: np.ndarray) -> float:
+    """Share of the pixels outside ``mask`` more than :data:`INVENTED_STEP` away from
+    their median value (module doc)."""
+    outside = pred[~mask].astype(np.float64)
+    return float(np.mean(np.abs(outside - np.median(outside)) > INVENTED_STEP))

@@ -31,12 +31,13 @@ from model.inference.evaluate import (
     write_figure,
 )
 from model.inference.exposure import exposure_stats
+from model.inference.observed import INVENTED_STEP
 from model.inference.references import SALT_AMPLITUDE, SALT_FRACTION
 from model.losses.lpips import LPIPS
 
 ECD_SENSOR_HW = (180, 240)
 NORMALIZATIONS = ("evreal", "affine", "observed")
-METRICS = ("psnr", "ssim", "mse", "lpips", "ewarp", "coverage")
+METRICS = ("psnr", "ssim", "mse", "lpips", "ewarp", "coverage", "invented")
 
 
 @dataclass(frozen=True)
@@ -165,7 +166,9 @@ def benchmark_markdown(rows: list[dict], reports: list[RecordingReport],
     lines += [f"Model `{ckpt}`, engine `{engine}`. Output at the sensor size (ours "
               f"area-downsampled) against each APS frame but the first; exposure averaging "
               f"of ours: {averaging} (baselines at the frame's timestamp). PSNR dB, SSIM, MSE, "
-              f"LPIPS (alex), E_warp x1e-3, region: the share of the frame scored; "
+              f"LPIPS (alex), E_warp x1e-3, region: the share of the frame scored, invented: "
+              f"the share of the pixels outside it drawn more than {INVENTED_STEP} from their "
+              f"median level; "
               f"`evreal`: EVREAL's protocol, `affine`: least-squares scale and offset per "
               f"frame, `observed`: the affine fit and the metrics inside the region where the "
               f"output's events fired with spatial support (static background that never "
@@ -183,7 +186,7 @@ def benchmark_markdown(rows: list[dict], reports: list[RecordingReport],
             line += (f"; outputs averaged per frame: {min(r.averaged)}-{max(r.averaged)}")
         lines.append(line)
     lines += ["", "| recording | normalisation | method | frames | PSNR | SSIM | MSE | LPIPS "
-              "| E_warp | region |", "|---|---|---|---|---|---|---|---|---|---|"]
+              "| E_warp | region | invented |", "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         cells = [f"{r[k]:.4f}" if k in r else "-" for k in METRICS]
         lines.append(f"| {r['sequence']} | {r['normalize']} | {r['method']} | {r['frames']} | "

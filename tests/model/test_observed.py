@@ -149,3 +149,22 @@ def test_the_street_clips_observed_region_leaves_the_static_background_out():
     mask = ob.support_mask(first.slice(0, 4000))
     # events come from the cars and from noise; most of the static street never fires
     assert 0.002 < mask.mean() < 0.3
+
+
+def test_invented_counts_what_is_drawn_where_no_event_fired(lpips_net):
+    gt = photo(128)[0, 0].numpy()
+    mask = np.zeros(gt.shape, bool)
+    mask[40:80, 40:80] = True
+    pred = np.full(gt.shape, 0.3, np.float32)
+    pred[mask] = gt[mask]
+    assert ob.masked_metrics(pred, gt, mask, lpips_net)["invented"] == 0.0
+    assert ob.invented_share(pred, mask) == 0.0
+    # a dark cloud over a tenth of the unobserved pixels, and faint ripples that do not count
+    outside = np.flatnonzero(~mask.ravel())
+    cloud = outside[: outside.size // 10]
+    flat = pred.ravel().copy()
+    flat[cloud] -= 0.2
+    flat[outside[outside.size // 10:: 2]] += 0.5 * ob.INVENTED_STEP
+    assert ob.invented_share(flat.reshape(gt.shape), mask) == pytest.approx(0.1, abs=1e-3)
+    # a region that leaves too few pixels outside has no such score
+    assert "invented" not in ob.masked_metrics(pred, gt, np.ones(gt.shape, bool), lpips_net)
