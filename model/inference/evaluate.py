@@ -325,7 +325,7 @@ def _reference_rows(seq: SequenceOutputs, proto: str, targets: list[np.ndarray],
             if options.normalize != "observed":
                 per_frame.append(frame_metrics(reference_image(kind, g, i), g, lpips_net))
                 continue
-            mask = upscale_mask(seq.support[i], scale) if scale > 1 else seq.support[i]
+            mask = upscale_mask(seq.support[i], scale)
             if int(mask.sum()) >= MIN_PIXELS:
                 per_frame.append(masked_metrics(reference_image(kind, g, i, mask), g, mask,
                                                 lpips_net))
@@ -349,14 +349,12 @@ def _observed(seq: SequenceOutputs, preds: list[np.ndarray], targets: list[np.nd
         raise ValueError(f"{seq.name}: no observed regions to score under 'observed'")
     pairs, per_frame = [], []
     for p, g, region in zip(preds, targets, seq.support):
-        mask = upscale_mask(region, scale) if scale > 1 else region
-        if int(mask.sum()) < 2:
+        mask = upscale_mask(region, scale)
+        if int(mask.sum()) < MIN_PIXELS:  # too small to score: no fit either
             continue
         mapped = affine_in(p, g, mask)
-        found = masked_metrics(mapped, g, mask, lpips_net)
-        if found is not None:
-            pairs.append((mapped, g))
-            per_frame.append(found)
+        pairs.append((mapped, g))
+        per_frame.append(masked_metrics(mapped, g, mask, lpips_net))
     return pairs, per_frame
 
 

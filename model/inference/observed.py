@@ -58,8 +58,9 @@ def support_mask(events: Events, radius: int = RADIUS,
 
 
 def upscale_mask(mask: np.ndarray, scale: int) -> np.ndarray:
-    """The region at ``scale`` times the size (each pixel becomes a scale x scale block)."""
-    return np.repeat(np.repeat(mask, scale, 0), scale, 1)
+    """The region at ``scale`` times the size (each pixel becomes a scale x scale block);
+    ``mask`` itself at scale 1."""
+    return mask if scale == 1 else np.repeat(np.repeat(mask, scale, 0), scale, 1)
 
 
 def affine_in(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray) -> np.ndarray:
