@@ -11,9 +11,23 @@ from model.data.config import DataConfig
 
 @dataclass(frozen=True)
 class LossConfig:
-    """``lpips_weight``: lambda of L1 + lambda * LPIPS (the paper: 0.01; 0 = L1 only)."""
+    """The training loss: L1 + ``lpips_weight`` LPIPS + ``unfired_tv`` TV(unfired).
+
+    Attributes:
+        lpips_weight: lambda of L1 + lambda * LPIPS (the paper: 0.01; 0 = L1 only).
+        unfired_tv: weight of the output's total variation where no event fired
+            (model/losses/unfired.py; 0 = off, the paper's loss): each event-free region
+            may take one level, and levels change only where events fired.
+        unfired_dilate: LR pixels the fired region is widened by before that term.
+    """
 
     lpips_weight: float = 0.01
+    unfired_tv: float = 0.0
+    unfired_dilate: int = 1
+
+    def __post_init__(self) -> None:
+        if self.lpips_weight < 0 or self.unfired_tv < 0 or self.unfired_dilate < 0:
+            raise ValueError("loss weights and loss.unfired_dilate must be >= 0")
 
 
 @dataclass(frozen=True)

@@ -148,7 +148,8 @@ def build_state(cfg: TrainConfig, env: Distributed, steps_per_epoch: int,
         if net.flow_net is None:
             raise ValueError("run.flow_init needs model.flow = learned")
         net.flow_net.load_state_dict(checkpoint.load_any(run.flow_init)["flow_net"])
-    criterion = SimilarityLoss(cfg.loss.lpips_weight).to(env.device)
+    criterion = SimilarityLoss(cfg.loss.lpips_weight, unfired_tv=cfg.loss.unfired_tv,
+                               unfired_dilate=cfg.loss.unfired_dilate).to(env.device)
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.optim.lr, betas=cfg.optim.betas,
                                  weight_decay=cfg.optim.weight_decay)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer,
@@ -250,7 +251,7 @@ def train_one_epoch(state: TrainState, data: TrainData, cfg: TrainConfig, env: D
                 else nullcontext():
             output = state.model(batch["stacks"], central_input(batch, cfg, state.first_pass),
                                  batch["flows"])
-        loss, parts = state.criterion(output.float(), batch["hr"])
+        loss, parts = state.criterion(output.float(), batch["hr"], batch["stacks"])
         if not torch.isfinite(loss):
             report.save(state, out / f"nan_step{state.step}.pt")
             raise FloatingPointError(f"loss is {loss.item()} at step {state.step}; the state "
