@@ -106,8 +106,8 @@ def _stack_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--stack-rule", choices=["auto", "active", "area"], default="auto",
                    help="how events per stack scale from the model's: active (by the pixels "
                    "active in the recording's first second), area (by sensor area, the "
-                   "paper's rule), auto (default: area for our shards, active for other "
-                   "recordings); see docs/evaluation.md")
+                   "paper's rule), auto (default: active for recordings; for our shards, "
+                   "the rule the model was trained with); see docs/evaluation.md")
 
 
 def reconstruct_main(argv: list[str] | None = None) -> int:
@@ -141,6 +141,7 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         from datagen.recording import open_recording
+        from model import checkpoint
         from model.inference.pretrained import resolve
         from model.inference.reconstruct import Reconstructor, plan_outputs, reconstruct
         from model.inference.stack_size import measure_activity, resolve_rule
@@ -148,11 +149,13 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
         _check_out_folder(args.out)
         ckpt = resolve(args.checkpoint, args.scale)
         rec = open_recording(args.input, _sensor(args.sensor_size), args.sequence)
+        state = checkpoint.load(ckpt)
+        trained_rule = checkpoint.config_of(state, str(ckpt)).data.stack_rule
         active = args.events_per_stack is None and \
-            resolve_rule(args.stack_rule, rec.kind) == "active"
-        model = Reconstructor.load(ckpt, rec.sensor_hw, args.mode, args.first_pass,
-                                   args.events_per_stack, args.device, args.engine,
-                                   measure_activity(rec) if active else None)
+            resolve_rule(args.stack_rule, rec.kind, trained_rule) == "active"
+        model = Reconstructor.from_state(state, str(ckpt), rec.sensor_hw, args.mode,
+                                         args.first_pass, args.events_per_stack, args.device,
+                                         args.engine, measure_activity(rec) if active else None)
         plan = plan_outputs(rec, model.stacks, args.at, args.rate, args.every)
         result = reconstruct(rec, model, args.out, plan, args.mp4, not args.no_progress,
                              args.limit, temporal=args.temporal)

@@ -15,7 +15,7 @@ import logging
 import math
 import os
 import zlib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +24,7 @@ from torch.utils.data import Dataset
 
 from datagen.shard import ShardReader
 from esim_lite.core.stacking import (
+    StackConfig,
     stack_fit_warnings,
     stack_span_ns,
     stack_to_input,
@@ -35,6 +36,7 @@ from esim_lite.geometry.pose import Pose
 from model.data.classical_flow import stack_flows
 from model.data.config import DataConfig
 from model.data.input_cache import InputCache
+from model.inference.stack_size import ACTIVE_WINDOW_S, activity_of, choose_stack
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +48,33 @@ class SampleRef:
     frame: int
     anchor: int  # events before the frame (the central SBN stack ends here)
     t_ns: int  # the frame's time (the central SBT stack ends here)
+    events_per_channel: int  # the sequence's SBN stacks (data.stack_rule)
+
+    def stacks(self, config: StackConfig) -> StackConfig:
+        """``config`` with this sample's events per channel."""
+        if config.events_per_channel == self.events_per_channel:
+            return config
+        return replace(config, events_per_channel=self.events_per_channel)
+
+
+def sequence_stacks(reader: ShardReader, sequence: str, data: DataConfig) -> StackConfig:
+    """The SBN settings of one sequence's samples under ``data.stack_rule``: ``fixed``, the
+    configured ones; ``active``, reconstruction's active-pixel rule applied to the
+    sequence's first second (:func:`model.inference.stack_size.choose_stack`), the
+    sequence's sensor counting as the trained one."""
+    if data.stack_rule == "fixed":
+        return data.stacks
+    first = reader.events(sequence, 0, 1)
+    if not len(first):
+        return data.stacks
+    # a millisecond past the window: activity_of cuts at the window exactly
+    end = reader.event_index_at(sequence, int(first.t_ns[0]) + round(ACTIVE_WINDOW_S * 1e9)
+                                + 1_000_000)
+    activity = activity_of(reader.events(sequence, 0, end))
+    hw = activity.sensor_hw
+    choice = choose_stack(data.stacks.events_per_channel, data.stacks.channels, hw, hw,
+                          activity=activity)
+    return replace(data.stacks, events_per_channel=choice.events_per_channel)
 
 
 def split_sequences(keys: list[str], val_fraction: float) -> set[str]:
@@ -60,10 +89,7 @@ def split_sequences(keys: list[str], val_fraction: float) -> set[str]:
 def index_samples(shards: list[Path], data: DataConfig, n_stacks: int, scale: int
                   ) -> tuple[list[SampleRef], list[SampleRef]]:
     """(train, val) samples: every frame whose stacks fit inside its sequence's events."""
-    per_stack = data.stacks.events_per_stack
     half = n_stacks // 2
-    before = per_stack + half * (per_stack - data.stacks.overlap)
-    after = half * (per_stack - data.stacks.overlap)
     span = stack_span_ns(data.stacks)
     samples: dict[str, list[SampleRef]] = {}
     warned: set = set()
@@ -73,8 +99,10 @@ def index_samples(shards: list[Path], data: DataConfig, n_stacks: int, scale: in
             if data.stacks.method == "sbn" and layout is not None and layout.mode == "events" \
                     and (layout.every_events, layout.tail_events) not in warned:
                 warned.add((layout.every_events, layout.tail_events))
+                # against the configured size (the active rule's are at most that)
                 for problem in stack_fit_warnings(layout.every_events, layout.tail_events,
-                                                  per_stack, n_stacks, data.stacks.overlap):
+                                                  data.stacks.events_per_stack, n_stacks,
+                                                  data.stacks.overlap):
                     log.warning("%s: %s", path, problem)
             for seq in reader.sequences():
                 cams = reader.frame_names(seq)
@@ -84,6 +112,10 @@ def index_samples(shards: list[Path], data: DataConfig, n_stacks: int, scale: in
                 total = reader.num_events(seq)
                 idx = reader.frame_event_idx(seq)
                 t = reader.frame_times_ns(seq)
+                stacks = sequence_stacks(reader, seq, data)
+                per_stack = stacks.events_per_stack
+                before = per_stack + half * (per_stack - stacks.overlap)
+                after = half * (per_stack - stacks.overlap)
                 if data.stacks.method == "sbn":
                     fits = [k > 0 and a - before >= 0 and a + after <= total
                             for k, a in enumerate(idx)]
@@ -92,7 +124,7 @@ def index_samples(shards: list[Path], data: DataConfig, n_stacks: int, scale: in
                     fits = [k > 0 and t[k] - (half + 1) * span >= 0 and
                             t[k] + half * span <= t_last for k in range(len(idx))]
                 samples[f"{path.name}/{seq}"] = [
-                    SampleRef(str(path), seq, k, int(a), int(t[k]))
+                    SampleRef(str(path), seq, k, int(a), int(t[k]), stacks.events_per_channel)
                     for k, a in enumerate(idx) if fits[k]]
     val_keys = split_sequences(sorted(samples), data.val_fraction)
     train = [s for k in sorted(samples) if k not in val_keys for s in samples[k]]
@@ -131,7 +163,7 @@ class ShardSamples(Dataset):
 
     def _stacks(self, reader: ShardReader, ref: SampleRef):
         """(events read, stacks) around the sample's frame, by number or by time."""
-        cfg, half, t = self.data.stacks, self.n_stacks // 2, ref.t_ns
+        cfg, half, t = ref.stacks(self.data.stacks), self.n_stacks // 2, ref.t_ns
         if cfg.method == "sbn":
             lo = max(0, ref.anchor - (half + 1) * cfg.events_per_stack)
             hi = min(reader.num_events(ref.sequence), ref.anchor + half * cfg.events_per_stack)

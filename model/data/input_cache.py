@@ -54,6 +54,7 @@ class CacheSpec:
     flow: str  # dis, farneback or none
     n_stacks: int
     scale: int
+    stack_rule: str = "fixed"  # data.stack_rule: the samples carry their stack sizes
 
     def __post_init__(self) -> None:
         if self.stacks.method != "sbn":
@@ -75,7 +76,10 @@ def cache_folder(spec: CacheSpec, shard: Path) -> Path:
     to a subset shares the cache of the whole set), under the settings' hash, named by the
     shard's content identity."""
     real = Path(shard).resolve()
-    key = hashlib.sha256(repr(spec).encode()).hexdigest()[:12]
+    text = repr(spec)
+    if spec.stack_rule == "fixed":  # caches built before the rule existed keep their key
+        text = text.replace(", stack_rule='fixed'", "")
+    key = hashlib.sha256(text.encode()).hexdigest()[:12]
     return real.parent / "cache" / key / f"{real.stem}-{shard_identity(real)[:12]}"
 
 
@@ -92,7 +96,8 @@ def _shard_arrays(path: Path, refs: list, spec: CacheSpec) -> dict[str, np.ndarr
         for seq, seq_refs in sorted(by_seq.items()):
             events = reader.events(seq)
             for r in seq_refs:
-                built = stacks_around(events, spec.stacks, spec.n_stacks, r.anchor, r.t_ns)
+                built = stacks_around(events, r.stacks(spec.stacks), spec.n_stacks, r.anchor,
+                                      r.t_ns)
                 idx = []
                 for st in built:
                     key = (seq, st.bounds.tobytes())

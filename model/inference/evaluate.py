@@ -165,7 +165,8 @@ class ModelPool:
                 self.state, self.ckpt, hw, mode_of(self.config.model), self.first_pass,
                 engine=self.engine)
         given = self.options.events_per_stack
-        active = given is None and resolve_rule(self.options.stack_rule, rec.kind) == "active"
+        active = given is None and resolve_rule(self.options.stack_rule, rec.kind,
+                                                self.config.data.stack_rule) == "active"
         model = self._by_hw[hw].with_stacks(given, measure_activity(rec) if active else None)
         log.info("%s: %s events per stack", rec.path, model.stack_choice.describe())
         return model

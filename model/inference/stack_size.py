@@ -19,6 +19,9 @@ homography renderer, builtin textures). Three rules, in order:
   training stacks covered the plane, instead of stacks that span a second and smear them;
 - ``area`` (the paper's rule, kept for simulated shards): ``E' = E * area / trained_area``,
   i.e. every pixel active.
+
+A model trained with ``data.stack_rule: active`` (model/data/config.py) saw the active rule
+on every training sequence, so ``auto`` gives it the active rule on simulated shards too.
 """
 
 from __future__ import annotations
@@ -118,13 +121,14 @@ class StackChoice:
                 f"{trained} per {tw}x{th} active pixels)")
 
 
-def resolve_rule(rule: Rule, kind: str) -> Literal["active", "area"]:
-    """``auto``: ``area`` for our simulated shards (recorded at the training camera), else
-    ``active`` (real recordings)."""
+def resolve_rule(rule: Rule, kind: str, trained: str = "fixed") -> Literal["active", "area"]:
+    """``auto``: ``active`` on real recordings; on our simulated shards (recorded at the
+    training camera) the rule the model was trained with (``trained``, its
+    ``data.stack_rule``): ``area`` for ``fixed``, ``active`` for ``active``."""
     if rule not in ("auto", "active", "area"):
         raise ValueError(f"unknown stack rule {rule!r} (expected auto, active or area)")
     if rule == "auto":
-        return "area" if kind == "shard" else "active"
+        return "active" if kind != "shard" or trained == "active" else "area"
     return rule
 
 

@@ -88,7 +88,8 @@ def build_data(config: TrainConfig, data: str | Path, env: Distributed = Distrib
         val_refs = spread(val_refs, run.val_batches * cfg.optim.batch_size)
     cache = None
     if use_cache and data_cfg.cache:
-        spec = CacheSpec(data_cfg.stacks, data_cfg.flow, cfg.model.n_stacks, cfg.model.scale)
+        spec = CacheSpec(data_cfg.stacks, data_cfg.flow, cfg.model.n_stacks, cfg.model.scale,
+                         data_cfg.stack_rule)
         cache = InputCache.build(shards, train_refs + val_refs, spec,
                                  workers=max(1, os.cpu_count() or 1) if env.main else 1)
     train_set = ShardSamples(train_refs, data_cfg, cfg.model.n_stacks, cfg.model.scale, True,
