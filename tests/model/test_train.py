@@ -160,7 +160,7 @@ def test_nan_loss_saves_a_checkpoint_and_says_so(tiny_shards, tmp_path, monkeypa
     from model.losses import similarity as losses
 
     monkeypatch.setattr(losses.SimilarityLoss, "forward",
-                        lambda self, o, t: (o.mean() * float("nan"), {}))
+                        lambda self, o, t, stacks=None: (o.mean() * float("nan"), {}))
     with pytest.raises(FloatingPointError, match="loss is nan at step 0"):
         train(tiny_config(), tiny_shards, tmp_path, show_progress=False)
     assert (tmp_path / "nan_step0.pt").is_file()
