@@ -26,8 +26,8 @@ class DataConfig:
         flips: random horizontal/vertical flips in training.
         cache: precompute SBN stacks, flow and frames once into ``<data>/cache/`` and train
             from memory maps (model/data/input_cache.py); flow is then computed on whole frames.
-        stack_rule: SBN events per stack per sequence. ``fixed`` (the paper, the models
-            until the static-camera experiments): ``stacks.events_per_stack`` everywhere.
+        stack_rule: SBN events per stack per sequence. ``fixed`` (the paper, and every model
+            before run E, docs/models.md): ``stacks.events_per_stack`` everywhere.
             ``active``: the number reconstruction's active-pixel rule gives a recording of
             the sequence's activity (model/inference/stack_size.py: ``stacks`` per fully
             active sensor, times the share of pixels firing >= 2 events in the first
