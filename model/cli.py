@@ -144,18 +144,18 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
         from model import checkpoint
         from model.inference.pretrained import resolve
         from model.inference.reconstruct import Reconstructor, plan_outputs, reconstruct
-        from model.inference.stack_size import measure_activity, resolve_rule
+        from model.inference.stack_size import activity_for_rule
 
         _check_out_folder(args.out)
         ckpt = resolve(args.checkpoint, args.scale)
         rec = open_recording(args.input, _sensor(args.sensor_size), args.sequence)
         state = checkpoint.load(ckpt)
-        trained_rule = checkpoint.config_of(state, str(ckpt)).data.stack_rule
-        active = args.events_per_stack is None and \
-            resolve_rule(args.stack_rule, rec.kind, trained_rule) == "active"
+        activity = activity_for_rule(rec, args.stack_rule,
+                                     checkpoint.config_of(state, str(ckpt)).data.stack_rule,
+                                     args.events_per_stack)
         model = Reconstructor.from_state(state, str(ckpt), rec.sensor_hw, args.mode,
                                          args.first_pass, args.events_per_stack, args.device,
-                                         args.engine, measure_activity(rec) if active else None)
+                                         args.engine, activity)
         plan = plan_outputs(rec, model.stacks, args.at, args.rate, args.every)
         result = reconstruct(rec, model, args.out, plan, args.mp4, not args.no_progress,
                              args.limit, temporal=args.temporal)

@@ -65,7 +65,7 @@ from model.inference.observed import (
 )
 from model.inference.reconstruct import OutputPlan, Reconstructor, output_times
 from model.inference.references import REFERENCES, reference_image
-from model.inference.stack_size import Rule, StackChoice, measure_activity, resolve_rule
+from model.inference.stack_size import Rule, StackChoice, activity_for_rule
 from model.inference.temporal import reference_motion, temporally_consistent, warp_error
 from model.losses.lpips import LPIPS
 from model.metrics.image import mse, psnr, ssim
@@ -165,9 +165,8 @@ class ModelPool:
                 self.state, self.ckpt, hw, mode_of(self.config.model), self.first_pass,
                 engine=self.engine)
         given = self.options.events_per_stack
-        active = given is None and resolve_rule(self.options.stack_rule, rec.kind,
-                                                self.config.data.stack_rule) == "active"
-        model = self._by_hw[hw].with_stacks(given, measure_activity(rec) if active else None)
+        model = self._by_hw[hw].with_stacks(given, activity_for_rule(
+            rec, self.options.stack_rule, self.config.data.stack_rule, given))
         log.info("%s: %s events per stack", rec.path, model.stack_choice.describe())
         return model
 

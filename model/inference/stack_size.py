@@ -132,6 +132,16 @@ def resolve_rule(rule: Rule, kind: str, trained: str = "fixed") -> Literal["acti
     return rule
 
 
+def activity_for_rule(recording: Recording, rule: Rule, trained: str = "fixed",
+                      given: int | None = None) -> Activity | None:
+    """The recording's :func:`measure_activity` when its stacks follow the active rule
+    (:func:`resolve_rule` of ``rule`` for this recording and a model trained with
+    ``trained``; never with a ``given`` size), else None (the area rule)."""
+    if given is not None or resolve_rule(rule, recording.kind, trained) != "active":
+        return None
+    return measure_activity(recording)
+
+
 def choose_stack(trained_per_channel: int, channels: int, trained_hw: tuple[int, int],
                  sensor_hw: tuple[int, int], given: int | None = None,
                  activity: Activity | None = None) -> StackChoice:
