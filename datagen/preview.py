@@ -30,8 +30,11 @@ def sequence_preview(reader: ShardReader, name: str, stacks: StackConfig, rows: 
     event_idx = reader.frame_event_idx(name)
     t_ns = reader.frame_times_ns(name)
     cams = [c for c in reader.frame_names(name)]
+    # frames after the first (each has events since the one before); a sequence whose
+    # events filled less than one frame interval has only frame 0 (a static camera
+    # watching little motion), shown with the events up to it
     picks = np.unique(np.linspace(1, len(t_ns) - 1, rows + 2).round().astype(int)[1:-1]) \
-        if len(t_ns) > 2 else np.arange(1, len(t_ns))
+        if len(t_ns) > 2 else np.arange(1, len(t_ns)) if len(t_ns) == 2 else np.arange(len(t_ns))
     truth = reader.ground_truth_kinds(name)
     scale = flow_scale(np.stack([reader.flow(name, "lr", int(k)) for k in picks])) \
         if "flow" in truth and len(picks) else 1.0
@@ -39,8 +42,12 @@ def sequence_preview(reader: ShardReader, name: str, stacks: StackConfig, rows: 
     for k in picks:
         row = [(gray_to_rgb(reader.frame(name, c, int(k))),
                 f"{c} {info.frame_hw[c][1]}x{info.frame_hw[c][0]}  frame {k}") for c in cams]
-        between = reader.events(name, int(event_idx[k - 1]), int(event_idx[k]))
-        row.append((event_image(between), f"events since frame {k - 1}: {len(between)}"))
+        if k:
+            between = reader.events(name, int(event_idx[k - 1]), int(event_idx[k]))
+            row.append((event_image(between), f"events since frame {k - 1}: {len(between)}"))
+        else:
+            between = reader.events(name, 0, int(event_idx[0]))
+            row.append((event_image(between), f"events before frame 0: {len(between)}"))
         lo = max(0, int(event_idx[k]) - 2 * stacks.events_per_stack)
         window = reader.events(name, lo, int(event_idx[k]))
         stack = sbn_stack(window, stacks, end=len(window))

@@ -240,6 +240,21 @@ def test_inspect_and_preview(tmp_path, capsys):
     assert img.ndim == 3 and img.shape[0] > 100 and img.std() > 10
 
 
+def test_preview_of_a_sequence_with_only_its_first_frame(tmp_path):
+    """A static camera watching little motion can end before its events fill one frame
+    interval: the shard holds frame 0 only, and its preview shows that frame and the events
+    before it instead of failing on an empty sheet."""
+    gen.generate(tiny(**{"simulation.frames.every_events": 10 ** 9}), tmp_path, n_seq=1,
+                 seed=0, show_progress=False)
+    with ShardReader(tmp_path / "shard_00000.h5") as r:
+        assert len(r.frame_times_ns("seq_000000")) == 1
+    assert main(["preview", str(tmp_path), "--out", str(tmp_path / "png")]) == 0
+    from PIL import Image
+
+    img = np.asarray(Image.open(tmp_path / "png" / "shard_00000_seq_000000.png"))
+    assert img.ndim == 3 and img.shape[0] > 48 and img.std() > 10
+
+
 def test_shards_record_the_library_versions_and_inspect_shows_them(tmp_path, capsys):
     """Bytes are reproducible per software stack only, so each shard names its stack;
     a shard from before that still reads and inspects."""
