@@ -163,9 +163,9 @@ def probe_sequences(seqs, models: dict, factors: list[float], n_out: int, tag: d
                             motion_px=seq.motion_px(t_central, t))
                 for mname, model in models.items():
                     m = model.with_stacks(n)
-                    window = EventWindow(iter([ev]), hw)
-                    stacks = m.stacks_at(window, t).stacks
-                    raw = raw_output(m, stacks)
+                    window = EventWindow(iter([ev]), hw, history=bool(m.net.config.history))
+                    given = m.stacks_at(window, t)
+                    raw = raw_output(m, given.stacks, given.history)
                     for norm in NORMS:
                         if norm == "raw":
                             pred, target = raw, gt
@@ -231,9 +231,11 @@ def ecd_probe(models: dict, folder: Path, names: list[str], factors: list[float]
                 anchors = fit or [len(ev) // 2]  # too few events: partial stacks (as evaluate)
                 stats, shown = [], None
                 for a in anchors:
-                    window = EventWindow(iter([ev]), ev.sensor_hw)
+                    window = EventWindow(iter([ev]), ev.sensor_hw,
+                                         history=bool(m.net.config.history))
                     t = int(ev.t_ns[a - 1])
-                    img = np.clip(raw_output(m, m.stacks_at(window, t).stacks), 0, 1)
+                    given = m.stacks_at(window, t)
+                    img = np.clip(raw_output(m, given.stacks, given.history), 0, 1)
                     stats.append(self_rings(img, 2, 16))
                     shown = img if shown is None else shown
                 win = stack_window(anchors[0], n)

@@ -88,13 +88,14 @@ def engine_frames(models: list[Reconstructor], events: Events, frames: int, roun
     images: list[list[np.ndarray]] = [[] for _ in models]
     for r in range(rounds):
         for model, spent, out in zip(models, times, images):
-            window = EventWindow(iter([events]), events.sensor_hw)
+            window = EventWindow(iter([events]), events.sensor_hw,
+                                 history=bool(model.net.config.history))
             for k in range(frames + 1):
                 t = int(events.t_ns[(half + 1 + k) * per - 1])
                 start = time.perf_counter()
                 given = model.stacks_at(window, t)
                 stacking = time.perf_counter() - start
-                image, timing = model.run(given.stacks, None)
+                image, timing = model.run(given.stacks, None, given.history)
                 if k:  # the first output warms up caches and allocators
                     for key, v in {"stacking": stacking, **timing}.items():
                         spent[key].append(v)

@@ -74,6 +74,12 @@ class NetConfig:
             output pixel see about +-63 LR pixels instead of about +-18 (measured on the x2
             CPU variant); 0 (the shipped
             models): none. A model without it warm-starts one with it exactly.
+        history: time constants, in stacks, of the event-history input
+            (:mod:`model.data.history`: for every pixel ``exp(-age / tau)``, its age the
+            events since it last fired, before the output): one channel each, appended to
+            the central input, so EFR sees them beside every stack. Empty (the shipped
+            models): none. A model without it warm-starts one with it exactly (the new input
+            columns start at zero). Needs SBN stacks.
     """
 
     scale: int = 2
@@ -89,8 +95,12 @@ class NetConfig:
     fold: int = 1
     lift: Literal["shuffle", "smooth"] = "shuffle"
     context: int = 0
+    history: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "history", tuple(float(t) for t in self.history))
+        if any(not t > 0 for t in self.history):
+            raise ValueError(f"model.history time constants must be > 0, got {self.history}")
         if self.fold < 1 or (self.fold > 1 and self.state != "lr"):
             raise ValueError("fold must be >= 1, and > 1 only with state: lr")
         check_scales((self.scale,), "model.scale")
@@ -105,7 +115,8 @@ class NetConfig:
 
     @property
     def central_channels(self) -> int:
-        return self.stack_channels if self.central == "stack" else 1
+        """Channels of the central input: the stack, APS or first pass, then the history."""
+        return (self.stack_channels if self.central == "stack" else 1) + len(self.history)
 
 
 class E2SRI(nn.Module):
@@ -224,10 +235,25 @@ def count_parameters(model: nn.Module) -> int:
 def central_input(config: NetConfig, stacks: torch.Tensor, flows: torch.Tensor,
                   aps: torch.Tensor | None,
                   first_pass: Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
-                  | None) -> torch.Tensor:
+                  | None, history: torch.Tensor | None = None) -> torch.Tensor:
     """The network's central input (see :attr:`NetConfig.central`), (B, c, H, W) or
     (B, 1, H, W): the central stack, the APS frame, or a main model's output brought back
-    to the sensor size (Duo-Pass). ``stacks`` (B, n, c, H, W), ``flows`` (B, n, 2, H, W)."""
+    to the sensor size (Duo-Pass), followed by the event history ``(B, k, H, W)`` when the
+    model reads one (:attr:`NetConfig.history`). ``stacks`` (B, n, c, H, W), ``flows``
+    (B, n, 2, H, W)."""
+    base = _central_base(config, stacks, flows, aps, first_pass)
+    if not config.history:
+        return base
+    k = len(config.history)
+    if history is None or history.shape != (base.shape[0], k) + base.shape[-2:]:
+        raise ValueError(f"a model with an event-history input needs it as (B, {k}, H, W) "
+                         f"matching the stacks, got "
+                         f"{None if history is None else tuple(history.shape)}")
+    return torch.cat([base, history.to(base.dtype)], dim=1)
+
+
+def _central_base(config: NetConfig, stacks: torch.Tensor, flows: torch.Tensor,
+                  aps: torch.Tensor | None, first_pass) -> torch.Tensor:
     mid = config.n_stacks // 2
     if config.central == "stack":
         return stacks[:, mid]

@@ -35,6 +35,7 @@ from esim_lite.geometry.motion import planar_flow
 from esim_lite.geometry.pose import Pose
 from model.data.classical_flow import stack_flows
 from model.data.config import DataConfig
+from model.data.history import EventAge, history_input
 from model.data.input_cache import InputCache
 from model.inference.stack_size import ACTIVE_WINDOW_S, activity_of, choose_stack
 
@@ -139,12 +140,18 @@ _FLIP_Y = np.array([1.0, -1.0], np.float32)[:, None, None]  # negate dy on an up
 class ShardSamples(Dataset):
     """``dataset[i]`` -> dict of tensors: ``stacks`` (n, c, h, w) in [-1, 1], ``flows``
     (n, 2, h, w) pixels, ``lr`` (1, h, w) and ``hr`` (1, s h, s w) linear intensity,
-    ``index``. Shard files are opened lazily, once per process."""
+    ``index``, and with ``history`` (the model's time constants, in stacks) ``history``
+    (k, h, w) (:mod:`model.data.history`). Shard files are opened lazily, once per
+    process."""
 
     def __init__(self, refs: list[SampleRef], data: DataConfig, n_stacks: int, scale: int,
-                 train: bool, seed: int = 0, cache: InputCache | None = None) -> None:
+                 train: bool, seed: int = 0, cache: InputCache | None = None,
+                 history: tuple[float, ...] = ()) -> None:
         self.refs, self.data, self.n_stacks, self.scale = refs, data, n_stacks, scale
         self.train, self.seed, self.epoch, self.cache = train, seed, 0, cache
+        self.history = tuple(history)
+        if self.history and data.stacks.method != "sbn":
+            raise ValueError("the event-history input needs SBN stacks (data.stacks.method)")
         self._readers: dict[str, ShardReader] = {}
         self._pid = None
 
@@ -192,6 +199,16 @@ class ShardSamples(Dataset):
         flows[mid] = 0.0  # by definition (the projection round trip leaves ~1e-14)
         return flows
 
+    def _age(self, ref: SampleRef) -> np.ndarray | None:
+        """float32[H, W]: the sample's event age at its anchor (None without history)."""
+        if not self.history:
+            return None
+        if self.cache is not None:
+            return self.cache.age(ref)
+        reader = self._reader(ref.path)
+        events = reader.events(ref.sequence, 0, ref.anchor)
+        return EventAge(events.sensor_hw).age_at(events, 0, ref.anchor)
+
     def _inputs(self, ref: SampleRef):
         """(stacks uint8[n, c, H, W], whole-frame flows float32[n, 2, H, W] or None to
         compute them after cropping, lr, hr)."""
@@ -209,6 +226,7 @@ class ShardSamples(Dataset):
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         ref, cfg, s = self.refs[i], self.data, self.scale
         stacks, given, lr, hr = self._inputs(ref)
+        age = self._age(ref)
         if self.train:
             rng = np.random.default_rng([self.seed, self.epoch, i])
             if cfg.crop is not None:
@@ -221,12 +239,15 @@ class ShardSamples(Dataset):
                 stacks, lr = stacks[(..., *win)], lr[win]
                 hr = hr[s * y0:s * (y0 + cfg.crop), s * x0:s * (x0 + cfg.crop)]
                 given = None if given is None else given[(..., *win)]
+                age = None if age is None else age[win]
             if cfg.flips and rng.random() < 0.5:
                 stacks, lr, hr = stacks[..., ::-1], lr[:, ::-1], hr[:, ::-1]
                 given = None if given is None else given[..., ::-1] * _FLIP_X
+                age = None if age is None else age[:, ::-1]
             if cfg.flips and rng.random() < 0.5:
                 stacks, lr, hr = stacks[..., ::-1, :], lr[::-1], hr[::-1]
                 given = None if given is None else given[..., ::-1, :] * _FLIP_Y
+                age = None if age is None else age[::-1]
         stacks = np.ascontiguousarray(stacks)
         n, _, h, w = stacks.shape
         if given is not None:  # exact, or cached whole-frame flow: cropped/flipped above
@@ -235,8 +256,12 @@ class ShardSamples(Dataset):
             flows = stack_flows(stacks, cfg.flow)
         else:
             flows = np.zeros((n, 2, h, w), np.float32)
-        return {"stacks": torch.from_numpy(stack_to_input(stacks)),
+        item = {"stacks": torch.from_numpy(stack_to_input(stacks)),
                 "flows": torch.from_numpy(flows),
                 "lr": torch.from_numpy(np.ascontiguousarray(lr))[None],
                 "hr": torch.from_numpy(np.ascontiguousarray(hr))[None],
                 "index": torch.tensor(i)}
+        if age is not None:
+            per_stack = ref.stacks(cfg.stacks).events_per_stack
+            item["history"] = torch.from_numpy(history_input(age, per_stack, self.history))
+        return item

@@ -189,7 +189,7 @@ def run_sequence(recording: Recording, model: Reconstructor, frame_ids: list[int
         given = model.stacks_at(window, t)
         anchor = given.anchor
         aps = frames.intensity[k] if model.net.config.central == "aps" else None
-        ours, _ = model.run(given.stacks, aps)
+        ours, _ = model.run(given.stacks, aps, given.history)
         if exposures is not None:
             ours, n = _over_exposure(model, window, t, ours, aps, exposures[k])
             out.averaged.append(n)
@@ -227,9 +227,13 @@ def _over_exposure(model: Reconstructor, window, t: int, at_t: np.ndarray,
     already made), averaged over the window (:func:`exposure_average`)."""
     start, end = int(exposure[0]), int(exposure[1])
     times = sorted(set(boundary_times(window, model.stacks.events_per_stack, start, end)) | {t})
-    images = [at_t if u == t else model.run(model.stacks_at(window, u).stacks, aps)[0]
-              for u in times]
+    images = [at_t if u == t else _run_at(model, window, u, aps) for u in times]
     return exposure_average(times, images, (start, end))
+
+
+def _run_at(model: Reconstructor, window, t: int, aps: np.ndarray | None) -> np.ndarray:
+    given = model.stacks_at(window, t)
+    return model.run(given.stacks, aps, given.history)[0]
 
 
 def unscored_sequence(recording: Recording, model: Reconstructor, options: EvalOptions,
@@ -244,7 +248,7 @@ def unscored_sequence(recording: Recording, model: Reconstructor, options: EvalO
     plan = OutputPlan("events", model.stacks.events_per_stack)
     for t, _ in output_times(plan, recording, window):
         given = model.stacks_at(window, t)
-        ours, _ = model.run(given.stacks, None)
+        ours, _ = model.run(given.stacks, None, given.history)
         hf.add_events(window.slice(fed, given.anchor)[0])
         fed = window.pin = given.anchor
         window.forget(min(fed, given.first))

@@ -329,13 +329,14 @@ def stack_window(anchor: int, per_stack: int, n_stacks: int = 3) -> StackWindow:
 
 
 @torch.inference_mode()
-def raw_output(model, stacks: np.ndarray) -> np.ndarray:
-    """float32[sH, sW]: the network's output for uint8 ``stacks[n, c, H, W]`` *before* the
-    clamp to [0, 1] that ``Reconstructor.run`` applies (main mode, eager PyTorch)."""
+def raw_output(model, stacks: np.ndarray, history: np.ndarray | None = None) -> np.ndarray:
+    """float32[sH, sW]: the network's output for uint8 ``stacks[n, c, H, W]`` (and the
+    event history of a model that reads one) *before* the clamp to [0, 1] that
+    ``Reconstructor.run`` applies (main mode, eager PyTorch)."""
     net = model.net
     flows = stack_flows(stacks) if net.config.flow == "given" else \
         np.zeros((len(stacks), 2) + stacks.shape[-2:], np.float32)
     x = torch.from_numpy(stack_to_input(stacks))[None].to(model.device)
     f = torch.from_numpy(flows)[None].to(model.device)
-    central = model._central(x, f, None)
+    central = model._central(x, f, None, history)
     return net(x, central, f)[0, 0].float().cpu().numpy()

@@ -29,12 +29,12 @@ from __future__ import annotations
 import logging
 import tempfile
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from model.archs.e2sri_arch import E2SRI
+from model.archs.e2sri_arch import E2SRI, central_input
 from model.inference import graph_export
 
 log = logging.getLogger(__name__)
@@ -106,15 +106,18 @@ def calibration_inputs(net: E2SRI, calibration: Calibration | None = None
         pick = np.unique(np.linspace(0, len(refs) - 1, min(calibration.samples, len(refs)))
                          .round().astype(int))
         dataset = ShardSamples([refs[i] for i in pick], data, cfg.n_stacks, cfg.scale,
-                               train=False)
+                               train=False, history=cfg.history)
         items = [dataset[i] for i in range(len(dataset))]
-    mid = cfg.n_stacks // 2
+    # a Duo-Pass model is calibrated on the LR frame in its first pass's place (same range)
+    as_net = cfg if cfg.central != "first_pass" else replace(cfg, central="aps")
     out = []
     for item in items:
-        stacks = item["stacks"][None].numpy()
-        central = stacks[:, mid] if cfg.central == "stack" else item["lr"][None].numpy()
-        out.append({"stacks": stacks, "central": np.ascontiguousarray(central),
-                    "flows": item["flows"][None].numpy()})
+        batch = {k: v[None] for k, v in item.items()}
+        central = central_input(as_net, batch["stacks"], batch["flows"], batch["lr"], None,
+                                batch.get("history"))
+        out.append({"stacks": batch["stacks"].numpy(),
+                    "central": np.ascontiguousarray(central.numpy()),
+                    "flows": batch["flows"].numpy()})
     return out
 
 

@@ -34,6 +34,7 @@ from esim_lite.core.stacking import StackConfig, stack_span_ns, stack_to_input, 
 from model import checkpoint
 from model.archs.e2sri_arch import CENTRAL_OF_MODE, E2SRI, central_input
 from model.data.classical_flow import stack_flows
+from model.data.history import EventAge, history_input
 from model.inference.engines import Forward, load_engine
 from model.inference.stack_size import Activity, StackChoice, choose_stack
 from model.inference.temporal import consistency_step
@@ -48,15 +49,21 @@ class EventWindow:
     events behind the newest one read, events are dropped, unless ``pin`` holds them.
     ``keep_ns`` does the same by time: when a chunk is read, events more than ``keep_ns``
     older than the newest event *before* it are dropped (a read-ahead never reaches back
-    further than the time it was asked for)."""
+    further than the time it was asked for).
+
+    With ``history``, every event is folded into a running latest-event map
+    (:class:`model.data.history.EventAge`) as it is dropped, so :meth:`age_at` answers for
+    any anchor not yet dropped, whatever the window forgot."""
 
     def __init__(self, chunks: Iterator[Events], hw: tuple[int, int],
-                 keep: int | None = None, keep_ns: int | None = None) -> None:
+                 keep: int | None = None, keep_ns: int | None = None,
+                 history: bool = False) -> None:
         if keep is not None and keep_ns is not None:
             raise ValueError("give keep or keep_ns, not both")
         self._chunks, self.hw, self.keep, self.keep_ns = chunks, hw, keep, keep_ns
         self.buf, self.offset, self.done = Events.empty(hw), 0, False
         self.pin: int | None = None
+        self.history = EventAge(hw) if history else None
 
     @property
     def end(self) -> int:
@@ -100,21 +107,34 @@ class EventWindow:
     def forget(self, index: int) -> None:
         if index > self.offset:
             new = min(index, self.end)  # before the buffer shrinks: ``end`` depends on it
+            if self.history is not None:
+                self.history.advance(self.buf, self.offset, new)
             self.buf = self.buf.slice(new - self.offset, len(self.buf))
             self.offset = new
+
+    def age_at(self, anchor: int) -> np.ndarray:
+        """float32[H, W]: every pixel's event age before global index ``anchor``
+        (:func:`model.data.history.event_age`; a window made with ``history``)."""
+        if self.history is None:
+            raise ValueError("this event window keeps no event history")
+        while not self.done and self.end < anchor:
+            self._pull()
+        return self.history.age_at(self.buf, self.offset, min(anchor, self.end))
 
 
 @dataclass(frozen=True, eq=False)
 class StackedEvents:
     """One output's input: ``stacks`` uint8[n, c, H, W] built from ``events`` (global index
     of its first event: ``first``); ``anchor``: global index of the first event after the
-    output time; ``central``: the central stack's event range within ``events``."""
+    output time; ``central``: the central stack's event range within ``events``;
+    ``history``: float32[k, H, W] event history for a model that reads one, else None."""
 
     stacks: np.ndarray
     events: Events
     first: int
     anchor: int
     central: tuple[int, int]
+    history: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -198,10 +218,13 @@ class Reconstructor:
                      chunk_size: int) -> EventWindow:
         """A window over ``chunks`` holding what the stacks of one output need (SBN: a
         count of events; SBT: a time span), plus the read-ahead of ``chunk_size`` chunks."""
-        n = self.net.config.n_stacks
+        n, history = self.net.config.n_stacks, bool(self.net.config.history)
         if self.stacks.method == "sbt":
+            if history:
+                raise ValueError("a model with an event-history input needs SBN stacks")
             return EventWindow(chunks, hw, keep_ns=(n + 1) * stack_span_ns(self.stacks))
-        return EventWindow(chunks, hw, keep=n * self.stacks.events_per_stack + 2 * chunk_size)
+        return EventWindow(chunks, hw, keep=n * self.stacks.events_per_stack + 2 * chunk_size,
+                           history=history)
 
     def first_needed(self, window: EventWindow, t_ns: int) -> int:
         """Global index of the first event the stacks of an output at ``t_ns`` read."""
@@ -224,13 +247,19 @@ class Reconstructor:
         events, first = window.slice(lo, hi)
         built = stacks_around(events, cfg, n, anchor - first, t_ns)
         centre = built[half]
+        history = None
+        if self.net.config.history:
+            history = history_input(window.age_at(anchor), cfg.events_per_stack,
+                                    self.net.config.history)
         return StackedEvents(np.stack([st.image for st in built]), events, first, anchor,
-                             (centre.start, centre.end))
+                             (centre.start, centre.end), history)
 
     @torch.inference_mode()
-    def run(self, stacks: np.ndarray, aps: np.ndarray | None) -> tuple[np.ndarray, dict]:
+    def run(self, stacks: np.ndarray, aps: np.ndarray | None,
+            history: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
         """(float32[sH, sW] image in [0, 1], seconds spent in flow and network) for uint8
-        stacks ``[n, c, H, W]`` (and the APS frame for Complementary)."""
+        stacks ``[n, c, H, W]`` (and the APS frame for Complementary, the event history
+        float32[k, H, W] for a model that reads one: :attr:`StackedEvents.history`)."""
         timing = {}
         start = time.perf_counter()
         flows = stack_flows(stacks) if self.net.config.flow == "given" else \
@@ -239,17 +268,19 @@ class Reconstructor:
         start = time.perf_counter()
         x = torch.from_numpy(stack_to_input(stacks))[None].to(self.device)
         f = torch.from_numpy(flows)[None].to(self.device)
-        central = self._central(x, f, aps)
+        central = self._central(x, f, aps, history)
         out = (self.engine or self.net)(x, central, f).clamp(0, 1)[0, 0].float().cpu().numpy()
         if self.device.type == "cuda":
             torch.cuda.synchronize()
         timing["network"] = time.perf_counter() - start
         return out, timing
 
-    def _central(self, x, f, aps):
+    def _central(self, x, f, aps, history=None):
         if aps is not None:
             aps = torch.from_numpy(aps.astype(np.float32))[None, None].to(self.device)
-        return central_input(self.net.config, x, f, aps, self.first_pass)
+        if history is not None:
+            history = torch.from_numpy(np.asarray(history, np.float32))[None].to(self.device)
+        return central_input(self.net.config, x, f, aps, self.first_pass, history)
 
 
 @dataclass(frozen=True)
@@ -320,7 +351,7 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
         window.forget(given.first)
         seconds["stacking"] += time.perf_counter() - start
         aps = recording.frames.intensity[k] if k is not None else None
-        image, timing = model.run(given.stacks, aps)
+        image, timing = model.run(given.stacks, aps, given.history)
         for key, v in timing.items():
             seconds[key] += v
         if temporal is not None:

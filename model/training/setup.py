@@ -89,13 +89,14 @@ def build_data(config: TrainConfig, data: str | Path, env: Distributed = Distrib
     cache = None
     if use_cache and data_cfg.cache:
         spec = CacheSpec(data_cfg.stacks, data_cfg.flow, cfg.model.n_stacks, cfg.model.scale,
-                         data_cfg.stack_rule)
+                         data_cfg.stack_rule, bool(cfg.model.history))
         cache = InputCache.build(shards, train_refs + val_refs, spec,
                                  workers=max(1, os.cpu_count() or 1) if env.main else 1)
+    history = cfg.model.history
     train_set = ShardSamples(train_refs, data_cfg, cfg.model.n_stacks, cfg.model.scale, True,
-                             run.seed, cache)
+                             run.seed, cache, history)
     val_set = ShardSamples(val_refs, data_cfg, cfg.model.n_stacks, cfg.model.scale, False,
-                           cache=cache)
+                           cache=cache, history=history)
     steps = len(epoch_batches(len(train_set), cfg.optim.batch_size, run.seed, 0, env.rank,
                               env.world))
     if steps == 0:

@@ -56,7 +56,7 @@ def lr_lambda(optim: OptimConfig, steps_per_epoch: int):
 def central_input(batch: dict, config: TrainConfig, first_pass: E2SRI | None) -> torch.Tensor:
     """What the network's central input is for this experiment (see NetConfig.central)."""
     return e2sri_arch.central_input(config.model, batch["stacks"], batch["flows"],
-                                    batch["lr"], first_pass)
+                                    batch["lr"], first_pass, batch.get("history"))
 
 
 @torch.inference_mode()

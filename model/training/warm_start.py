@@ -1,7 +1,9 @@
 """Start a network from another one's weights: an x4 run from a trained x2 model.
 
-Only the scale, the lift's ending (``lift``: the parameter-free anti-grid filter) and the
-context branch (``context``: its tensors are left fresh, its residual starting at zero) may
+Only the scale, the lift's ending (``lift``: the parameter-free anti-grid filter), the
+context branch (``context``: its tensors are left fresh, its residual starting at zero) and
+the event-history input (``history``, added to a model without one: the first convolutions
+of EFR get new input columns, set to zero, so the network computes exactly what it did) may
 differ between the two networks. Every tensor whose name and shape agree
 is copied. In the LR-state variant the one scale-dependent layer is the sub-pixel lift
 (``mix.1``: ``scale^2 x hr_channels`` output channels before the pixel shuffle); when the new
@@ -26,8 +28,10 @@ from model.archs.e2sri_arch import E2SRI, NetConfig
 log = logging.getLogger(__name__)
 
 LIFT = "mix.1"  # the sub-pixel convolution of the LR-state variant
-FREE = ("scale", "lift", "context")  # what a warm start may change: no tensor, or new ones
-# that start at zero (the context branch's residual)
+FREE = ("scale", "lift", "context", "history")  # what a warm start may change: no tensor,
+# or new ones that start at zero (the context branch's residual, the history's input columns)
+WIDENED = ("efr0.0.0.weight", "efr.0.0.weight")  # first convolutions that read the central
+# input: the history's channels are inserted after the old central channels
 
 
 @dataclasses.dataclass(frozen=True)
@@ -37,7 +41,22 @@ class WarmStart:
     copied: tuple[str, ...]
     lifted: tuple[str, ...]
     fresh: tuple[str, ...]
+    widened: tuple[str, ...] = ()
 
+
+def widen_columns(old: NetConfig, new: NetConfig, name: str) -> tuple[torch.Tensor, int]:
+    """(new input-column index of each old column, new column count) of the first
+    convolution ``name`` of :data:`WIDENED` when the history input is added: the old
+    central channels keep their places and the history's follow them (each channel spans
+    ``fold^2`` columns after the space-to-depth fold)."""
+    f2 = new.fold ** 2
+    k = len(new.history) * f2
+    c_old = old.central_channels * f2
+    if name == "efr0.0.0.weight":  # [central]
+        return torch.arange(c_old), c_old + k
+    s = new.stack_channels * f2  # efr: [stack j, central, flow j]
+    cols = torch.cat([torch.arange(s + c_old), torch.arange(s + c_old + k, s + c_old + k + 2 * f2)])
+    return cols, s + c_old + k + 2 * f2
 
 def lift_index(old_scale: int, new_scale: int, fold: int, channels: int) -> torch.Tensor:
     """For each output channel of the new lift, the old lift's channel it copies.
@@ -62,7 +81,8 @@ def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
     ckpt = checkpoint.load(source)
     old = from_mapping(NetConfig, ckpt["net"], source=str(source))
     new = net.config
-    if dataclasses.replace(old, scale=new.scale, lift=new.lift, context=new.context) != new:
+    if dataclasses.replace(old, scale=new.scale, lift=new.lift, context=new.context,
+                           history=new.history) != new:
         differ = [f.name for f in dataclasses.fields(NetConfig) if f.name not in FREE
                   and getattr(old, f.name) != getattr(new, f.name)]
         raise ValueError(f"{source}: its network differs in {', '.join(differ)}; a warm start "
@@ -71,18 +91,29 @@ def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
     if old.context and new.context != old.context:
         raise ValueError(f"{source}: its context branch (width {old.context}) would be lost "
                          f"or left fresh (model.context: {new.context})")
+    if old.history and new.history != old.history:
+        raise ValueError(f"{source}: its event history (time constants {old.history}) "
+                         f"differs from model.history {new.history}")
     if new.scale % old.scale:
         raise ValueError(f"{source}: an x{old.scale} model cannot start an x{new.scale} one "
                          f"(the new scale must be a multiple of the old)")
     saved = {k: v.float() if v.is_floating_point() else v for k, v in ckpt["model"].items()}
     target = net.state_dict()
-    copied, lifted, fresh = [], [], []
+    copied, lifted, fresh, widened = [], [], [], []
     with torch.no_grad():
         for name, tensor in target.items():
             value = saved.get(name)
             if value is not None and value.shape == tensor.shape:
                 tensor.copy_(value)
                 copied.append(name)
+            elif value is not None and name in WIDENED and new.history and not old.history:
+                cols, width = widen_columns(old, new, name)
+                if tensor.shape[1] != width or value.shape[1] != len(cols):
+                    raise ValueError(f"{source}: {name} has {value.shape[1]} input columns, "
+                                     f"not the {len(cols)} its network implies")
+                tensor.zero_()
+                tensor[:, cols] = value
+                widened.append(name)
             elif value is not None and new.state == "lr" and name.startswith(LIFT + "."):
                 index = lift_index(old.scale, new.scale, new.fold, new.hr_channels)
                 tensor.copy_(value[index])
@@ -91,8 +122,9 @@ def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
                 fresh.append(name)
     if not copied:
         raise ValueError(f"{source}: no tensor matches the network")
-    result = WarmStart(tuple(copied), tuple(lifted), tuple(fresh))
-    log.info("warm start from %s (x%d -> x%d): %d tensors copied, %d lifted, %d fresh%s",
-             source, old.scale, new.scale, len(copied), len(lifted), len(fresh),
+    result = WarmStart(tuple(copied), tuple(lifted), tuple(fresh), tuple(widened))
+    log.info("warm start from %s (x%d -> x%d): %d tensors copied, %d lifted, %d widened, "
+             "%d fresh%s", source, old.scale, new.scale, len(copied), len(lifted),
+             len(widened), len(fresh),
              f" ({', '.join(fresh)})" if fresh else "")
     return result
