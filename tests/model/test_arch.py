@@ -26,6 +26,8 @@ def inputs(cfg: NetConfig, b=2, h=24, w=20):
     stacks = torch.randint(-1, 2, (b, cfg.n_stacks, cfg.stack_channels, h, w), generator=g)
     central = stacks[:, cfg.n_stacks // 2].float() if cfg.central == "stack" else \
         torch.rand(b, 1, h, w, generator=g)
+    if cfg.history:  # the event-history channels follow the central input
+        central = torch.cat([central, torch.rand(b, len(cfg.history), h, w, generator=g)], 1)
     return stacks.float(), central, torch.randn(b, cfg.n_stacks, 2, h, w, generator=g)
 
 
