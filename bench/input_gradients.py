@@ -43,7 +43,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     loss_cfg = cfg.loss
     criterion = SimilarityLoss(loss_cfg.lpips_weight, unfired_tv=loss_cfg.unfired_tv,
-                               unfired_dilate=loss_cfg.unfired_dilate)
+                               unfired_dilate=loss_cfg.unfired_dilate,
+                               fill_unseen=loss_cfg.fill_unseen,
+                               fill_dilate=loss_cfg.fill_dilate)
     samples = data.train_set
     samples.set_epoch(0)
     order = torch.randperm(len(samples), generator=torch.Generator().manual_seed(0))

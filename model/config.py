@@ -19,15 +19,23 @@ class LossConfig:
             (model/losses/unfired.py; 0 = off, the paper's loss): each event-free region
             may take one level, and levels change only where events fired.
         unfired_dilate: LR pixels the fired region is widened by before that term.
+        fill_unseen: score L1 and LPIPS against a target whose pixels outside the fired
+            region are a smooth fill of those inside it (model/losses/unseen.py; False =
+            the true image everywhere, the paper's loss).
+        fill_dilate: LR pixels the fired region is widened by before the fill.
     """
 
     lpips_weight: float = 0.01
     unfired_tv: float = 0.0
     unfired_dilate: int = 1
+    fill_unseen: bool = False
+    fill_dilate: int = 2
 
     def __post_init__(self) -> None:
-        if self.lpips_weight < 0 or self.unfired_tv < 0 or self.unfired_dilate < 0:
-            raise ValueError("loss weights and loss.unfired_dilate must be >= 0")
+        if self.lpips_weight < 0 or self.unfired_tv < 0 or self.unfired_dilate < 0 \
+                or self.fill_dilate < 0:
+            raise ValueError("loss weights, loss.unfired_dilate and loss.fill_dilate must be "
+                             ">= 0")
 
 
 @dataclass(frozen=True)

@@ -149,7 +149,9 @@ def build_state(cfg: TrainConfig, env: Distributed, steps_per_epoch: int,
             raise ValueError("run.flow_init needs model.flow = learned")
         net.flow_net.load_state_dict(checkpoint.load_any(run.flow_init)["flow_net"])
     criterion = SimilarityLoss(cfg.loss.lpips_weight, unfired_tv=cfg.loss.unfired_tv,
-                               unfired_dilate=cfg.loss.unfired_dilate).to(env.device)
+                               unfired_dilate=cfg.loss.unfired_dilate,
+                               fill_unseen=cfg.loss.fill_unseen,
+                               fill_dilate=cfg.loss.fill_dilate).to(env.device)
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.optim.lr, betas=cfg.optim.betas,
                                  weight_decay=cfg.optim.weight_decay)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer,
