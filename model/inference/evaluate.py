@@ -453,7 +453,11 @@ def run_notes(sequences: list[SequenceOutputs], options: EvalOptions) -> list[st
 
 def write_tables(rows: list[dict], out: Path, options: EvalOptions,
                  notes: list[str] | None = None) -> None:
-    cols = ["sequence", "protocol", "method", "frames", "psnr", "ssim", "mse", "lpips", "ewarp"]
+    metrics = ["psnr", "ssim", "mse", "lpips", "ewarp"]
+    heads = ["PSNR", "SSIM", "MSE", "LPIPS", "E_warp"]
+    if any("coverage" in r or "invented" in r for r in rows):  # the observed region's
+        metrics, heads = metrics + ["coverage", "invented"], heads + ["region", "invented"]
+    cols = ["sequence", "protocol", "method", "frames", *metrics]
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
     w.writeheader()
@@ -461,7 +465,10 @@ def write_tables(rows: list[dict], out: Path, options: EvalOptions,
         w.writerow({k: r.get(k, "") for k in cols})
     write_text(out / "metrics.csv", buf.getvalue())
     lines = [f"Normalisation: {options.normalize}. PSNR dB, SSIM, MSE, LPIPS (alex), "
-             f"E_warp x1e-3 (lower is better except PSNR and SSIM).", ""]
+             f"E_warp x1e-3 (lower is better except PSNR and SSIM)"
+             + ("; region: the share of the frame scored, invented: the share of the pixels "
+                "outside it drawn more than 0.04 from their median level" if "invented" in metrics
+                else "") + ".", ""]
     if notes:
         lines += ["Events per stack:", "", *notes, ""]
     for proto in ("hr", "lr"):
@@ -470,11 +477,10 @@ def write_tables(rows: list[dict], out: Path, options: EvalOptions,
             continue
         title = "HR output vs HR ground truth" if proto == "hr" else \
             "output at sensor size vs APS/LR frame"
-        lines += [f"### {title}", "", "| sequence | method | frames | PSNR | SSIM | MSE | LPIPS "
-                  "| E_warp |", "|---|---|---|---|---|---|---|---|"]
+        lines += [f"### {title}", "", "| sequence | method | frames | " + " | ".join(heads)
+                  + " |", "|---|---|---|" + "---|" * len(heads)]
         for r in sel:
-            cells = [f"{r[k]:.4f}" if k in r else "-" for k in ("psnr", "ssim", "mse", "lpips",
-                                                                "ewarp")]
+            cells = [f"{r[k]:.4f}" if k in r else "-" for k in metrics]
             lines.append(f"| {r['sequence']} | {r['method']} | {r['frames']} | "
                          + " | ".join(cells) + " |")
         lines.append("")

@@ -131,6 +131,14 @@ def test_observed_scores_equal_the_affine_ones_when_every_pixel_is_observed(
     assert {r["protocol"] for r in real} == {"hr", "lr"}
     assert all("ewarp" not in r for r in real)
     assert all(0 < r["coverage"] <= 1 for r in real if r["frames"])
+    # the tables carry the region and the invented share (written files read back)
+    import csv
+    written = list(csv.DictReader((tmp_path / "o" / "metrics.csv").open()))
+    assert len(written) == len(real)
+    for r, w in zip(real, written):
+        assert float(w["coverage"]) == pytest.approx(r["coverage"])
+        assert (w["invented"] == "") == ("invented" not in r)
+    assert "| region | invented |" in (tmp_path / "o" / "metrics.md").read_text()
     monkeypatch.setattr(ev, "support_mask",
                         lambda events: np.ones(events.sensor_hw, bool))
     everywhere = ev.evaluate(tiny_checkpoint, tmp_path / "w", tiny_shards, split="all",
