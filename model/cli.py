@@ -224,9 +224,12 @@ def evaluate_main(argv: list[str] | None = None) -> int:
         return 2
     for r in rows:
         if r["sequence"] == "average":
+            extra = (f"  E_warp {r['ewarp']:.2f}" if "ewarp" in r else "") + (
+                f"  region {r['coverage']:.3f}  invented {r['invented']:.3f}"
+                if "invented" in r else "")
             print(f"{r['protocol']:>2} {r['method']:<13} PSNR {r['psnr']:6.2f}  SSIM "
                   f"{r['ssim']:.3f}  MSE {r['mse']:.4f}  LPIPS {r.get('lpips', float('nan')):.3f}"
-                  f"  E_warp {r['ewarp']:.2f}")
+                  f"{extra}")
     print(f"tables: {args.out}/metrics.md (with the events per stack of each sequence), "
           f"{args.out}/metrics.csv; figure: {args.out}/figure.png")
     return 0

@@ -120,7 +120,7 @@ def test_without_baselines_the_figure_has_no_hf_panels(tiny_shards, tiny_checkpo
 
 
 def test_observed_scores_equal_the_affine_ones_when_every_pixel_is_observed(
-        tiny_shards, tiny_checkpoint, tmp_path, monkeypatch):
+        tiny_shards, tiny_checkpoint, tmp_path, monkeypatch, capsys):
     """Wiring of the ``observed`` normalisation (model/inference/observed.py): with a region
     covering the whole frame its fit and metrics are the affine protocol's, at HR and LR."""
     from model.inference import evaluate as ev
@@ -139,6 +139,12 @@ def test_observed_scores_equal_the_affine_ones_when_every_pixel_is_observed(
         assert float(w["coverage"]) == pytest.approx(r["coverage"])
         assert (w["invented"] == "") == ("invented" not in r)
     assert "| region | invented |" in (tmp_path / "o" / "metrics.md").read_text()
+    # and from the command line, which prints the averages (no E_warp under observed)
+    assert evaluate_main(["--checkpoint", str(tiny_checkpoint), "--data", str(tiny_shards),
+                          "--split", "all", "--normalize", "observed", "--no-temporal",
+                          "--max-frames", "2", "--out", str(tmp_path / "cli")]) == 0
+    printed = capsys.readouterr().out
+    assert "invented" in printed and "E_warp" not in printed
     monkeypatch.setattr(ev, "support_mask",
                         lambda events: np.ones(events.sensor_hw, bool))
     everywhere = ev.evaluate(tiny_checkpoint, tmp_path / "w", tiny_shards, split="all",
