@@ -10,10 +10,10 @@ from torch import nn
 PROJECTION = {2: (6, 2, 2), 4: (8, 4, 2), 8: (12, 8, 2)}  # kernel, stride, padding per scale
 
 
-def conv(c_in: int, c_out: int, k: int = 3, s: int = 1, p: int = 1, act: bool = True
-         ) -> nn.Sequential:
-    """Conv2d (+ PReLU). ``(B, c_in, H, W) -> (B, c_out, H', W')``."""
-    layers: list[nn.Module] = [nn.Conv2d(c_in, c_out, k, s, p)]
+def conv(c_in: int, c_out: int, k: int = 3, s: int = 1, p: int = 1, act: bool = True,
+         d: int = 1) -> nn.Sequential:
+    """Conv2d (+ PReLU), dilation ``d``. ``(B, c_in, H, W) -> (B, c_out, H', W')``."""
+    layers: list[nn.Module] = [nn.Conv2d(c_in, c_out, k, s, p, dilation=d)]
     if act:
         layers.append(nn.PReLU(c_out))
     return nn.Sequential(*layers)
@@ -107,14 +107,30 @@ class ContextBranch(nn.Module):
     about +-63 LR pixels (measured on the x2 CPU variant) for little compute.
     That last convolution starts at zero, so a network warm-started from one without the
     branch computes exactly what it did until training moves it.
+
+    ``far="dilated"`` reaches as far with a finer grain: the far path runs on the 4x4
+    cells (not 16x16) through a 3x3 convolution and three more dilated by 2, 4 and 8 (+-15
+    cells, +-60 LR pixels), so what it adds can change every 4 LR pixels instead of being a
+    bilinear blend of 16-pixel cells, which spreads anything it carries over +-16 pixels
+    whatever the data say (the cloud around moving objects on a static background that
+    ``bench/context_ablation.py`` traced to the 16x16 path). The near path is the 4x4 one.
     """
 
-    def __init__(self, channels: int, width: int, factors: tuple[int, ...] = (4, 16)) -> None:
+    def __init__(self, channels: int, width: int, factors: tuple[int, ...] = (4, 16),
+                 far: str = "cells") -> None:
         super().__init__()
+        if far not in ("cells", "dilated"):
+            raise ValueError(f"far must be cells or dilated, got {far!r}")
+        self.far_kind = far
+        if far == "dilated":
+            factors = (FAR_CELL,)
+            self.far = nn.Sequential(conv(channels, width),
+                                     *(conv(width, width, p=d, d=d) for d in FAR_DILATIONS))
         self.factors = tuple(factors)
         self.paths = nn.ModuleList(nn.Sequential(conv(channels, width), conv(width, width))
                                    for _ in self.factors)
-        self.out = nn.Conv2d(width * len(self.factors), channels, 1)
+        n_paths = len(self.factors) + (far == "dilated")
+        self.out = nn.Conv2d(width * n_paths, channels, 1)
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
 
@@ -123,7 +139,16 @@ class ContextBranch(nn.Module):
         parts = [F.interpolate(path(cell_means(x, f)), scale_factor=f, mode="bilinear",
                                align_corners=False)[..., :h, :w]
                  for f, path in zip(self.factors, self.paths)]
+        if self.far_kind == "dilated":
+            parts.append(F.interpolate(self.far(cell_means(x, FAR_CELL)), scale_factor=FAR_CELL,
+                                       mode="bilinear", align_corners=False)[..., :h, :w])
         return x + self.out(torch.cat(parts, dim=1))
+
+
+FAR_CELL = 4
+"""Cell size of the dilated far path (and of the near path beside it)."""
+FAR_DILATIONS = (2, 4, 8)
+"""Dilations of the far path's convolutions after its first (undilated) one."""
 
 
 def cell_means(x: torch.Tensor, f: int) -> torch.Tensor:

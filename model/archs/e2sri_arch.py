@@ -74,6 +74,11 @@ class NetConfig:
             output pixel see about +-63 LR pixels instead of about +-18 (measured on the x2
             CPU variant); 0 (the shipped
             models): none. A model without it warm-starts one with it exactly.
+        context_far: the far path of the context branch. ``cells`` (the default): 16x16
+            cells, bilinear back. ``dilated``: dilated convolutions on the 4x4 cells, as
+            far with a 4-pixel grain (:class:`model.archs.blocks.ContextBranch`). A
+            ``cells`` model warm-starts a ``dilated`` one with the far path fresh and its
+            share of the residual at zero: it computes what it did without its 16x16 path.
         history: time constants, in stacks, of the event-history input
             (:mod:`model.data.history`: for every pixel ``exp(-age / tau)``, its age the
             events since it last fired, before the output): one channel each, appended to
@@ -95,6 +100,7 @@ class NetConfig:
     fold: int = 1
     lift: Literal["shuffle", "smooth"] = "shuffle"
     context: int = 0
+    context_far: Literal["cells", "dilated"] = "cells"
     history: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
@@ -108,6 +114,9 @@ class NetConfig:
             raise ValueError(f"model.lift must be shuffle or smooth, got {self.lift!r}")
         if self.context < 0 or (self.context and self.state != "lr"):
             raise ValueError("model.context must be >= 0, and > 0 only with state: lr")
+        if self.context_far not in ("cells", "dilated"):
+            raise ValueError(f"model.context_far must be cells or dilated, got "
+                             f"{self.context_far!r}")
         if self.n_stacks < 3 or self.n_stacks % 2 == 0:
             raise ValueError(f"n_stacks must be odd and >= 3, got {self.n_stacks}")
         if min(self.base_channels, self.hr_channels, self.c_blocks, self.blocks) < 1:
@@ -157,7 +166,8 @@ class E2SRI(nn.Module):
                                      SubPixelLift(lift, cfg.lift == "smooth", h), nn.PReLU(h),
                                      conv(h, 1, act=False))
             if cfg.context:
-                self.context = ContextBranch((cfg.n_stacks - 1) * b, cfg.context)
+                self.context = ContextBranch((cfg.n_stacks - 1) * b, cfg.context,
+                                             far=cfg.context_far)
         self.flow_net = FlowNet(cfg.stack_channels) if cfg.flow == "learned" else None
 
     def forward(self, stacks: torch.Tensor, central: torch.Tensor,

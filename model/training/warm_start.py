@@ -1,7 +1,9 @@
 """Start a network from another one's weights: an x4 run from a trained x2 model.
 
 Only the scale, the lift's ending (``lift``: the parameter-free anti-grid filter), the
-context branch (``context``: its tensors are left fresh, its residual starting at zero) and
+context branch (``context``: its tensors are left fresh, its residual starting at zero;
+``context_far`` from ``cells`` to ``dilated``: the 16x16 path is dropped, the dilated one left
+fresh and its columns of the residual zero) and
 the event-history input (``history``, added to a model without one: the first convolutions
 of EFR get new input columns, set to zero, so the network computes exactly what it did) may
 differ between the two networks. Every tensor whose name and shape agree
@@ -28,8 +30,9 @@ from model.archs.e2sri_arch import E2SRI, NetConfig
 log = logging.getLogger(__name__)
 
 LIFT = "mix.1"  # the sub-pixel convolution of the LR-state variant
-FREE = ("scale", "lift", "context", "history")  # what a warm start may change: no tensor,
-# or new ones that start at zero (the context branch's residual, the history's input columns)
+FREE = ("scale", "lift", "context", "context_far", "history")  # what a warm start may
+# change: no tensor, or new ones that start at zero (the context branch's residual, the
+# history's input columns)
 WIDENED = ("efr0.0.0.weight", "efr.0.0.weight")  # first convolutions that read the central
 # input: the history's channels are inserted after the old central channels
 
@@ -82,7 +85,7 @@ def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
     old = from_mapping(NetConfig, ckpt["net"], source=str(source))
     new = net.config
     if dataclasses.replace(old, scale=new.scale, lift=new.lift, context=new.context,
-                           history=new.history) != new:
+                           context_far=new.context_far, history=new.history) != new:
         differ = [f.name for f in dataclasses.fields(NetConfig) if f.name not in FREE
                   and getattr(old, f.name) != getattr(new, f.name)]
         raise ValueError(f"{source}: its network differs in {', '.join(differ)}; a warm start "
@@ -91,6 +94,9 @@ def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
     if old.context and new.context != old.context:
         raise ValueError(f"{source}: its context branch (width {old.context}) would be lost "
                          f"or left fresh (model.context: {new.context})")
+    if old.context and old.context_far != new.context_far and old.context_far != "cells":
+        raise ValueError(f"{source}: its context branch's far path ({old.context_far}) "
+                         f"would be lost (model.context_far: {new.context_far})")
     if old.history and new.history != old.history:
         raise ValueError(f"{source}: its event history (time constants {old.history}) "
                          f"differs from model.history {new.history}")
@@ -120,6 +126,11 @@ def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
                 lifted.append(name)
             else:
                 fresh.append(name)
+        if old.context and old.context_far != new.context_far:
+            # the 16x16 path is dropped: its columns of the residual start at zero, so the
+            # new network computes the old one without it, the dilated path fresh beside it
+            net.context.out.weight[:, new.context * len(net.context.factors):] = 0
+            fresh.append("context.out.weight (far columns)")
     if not copied:
         raise ValueError(f"{source}: no tensor matches the network")
     result = WarmStart(tuple(copied), tuple(lifted), tuple(fresh), tuple(widened))

@@ -89,3 +89,117 @@ def test_a_context_needs_the_lr_state():
         NetConfig(context=8)  # state: hr
     with pytest.raises(ValueError, match="model.context"):
         NetConfig(state="lr", context=-1)
+
+
+def test_the_dilated_far_path_reaches_as_far_with_a_finer_grain():
+    torch.manual_seed(0)
+    net = E2SRI(NetConfig(**SMALL, context=8, context_far="dilated")).eval()
+    assert torch.equal(net.context(x := torch.randn(1, 16, 37, 51)), x)  # identity at start
+    torch.nn.init.normal_(net.context.out.weight, std=0.1)  # as if trained
+    assert reach(net) >= 56  # 4x4 cells, +-15 cells of dilated convolutions
+    for hw in [(37, 51), (16, 16), (5, 3)]:  # sizes its cells do not divide
+        y = torch.randn(1, 16, *hw)
+        assert net.context(y).shape == y.shape
+    # it reads 4x4 cell means: a change inside one cell that keeps its mean changes
+    # nothing, and a change of one cell's mean reaches pixels over 48 LR pixels away
+    branch = net.context
+    torch.nn.init.zeros_(branch.out.weight)
+    torch.nn.init.normal_(branch.out.weight[:, 8:], std=0.1)  # the far path only
+    base = torch.randn(1, 16, 128, 128, generator=torch.Generator().manual_seed(2))
+    inside = base.clone()
+    inside[..., 60, 60] += 1.0
+    inside[..., 61, 62] -= 1.0  # same 4x4 cell, same mean
+    moved = base.clone()
+    moved[..., 60:64, 60:64] += 1.0
+    with torch.no_grad():
+        out0, out1, out2 = branch(base), branch(inside), branch(moved)
+    far_only = (out1 - inside) - (out0 - base)
+    assert far_only.abs().max() < 1e-5
+    diff = (out2 - moved - out0 + base).abs().sum(dim=1)[0] > 1e-6
+    ys, xs = torch.nonzero(diff, as_tuple=True)
+    assert torch.maximum((ys - 62).abs(), (xs - 62).abs()).max() >= 48
+
+
+def test_a_cells_model_warm_starts_a_dilated_one_as_itself_without_its_16x16_path(tmp_path):
+    torch.manual_seed(1)
+    cells = E2SRI(NetConfig(**SMALL, context=8)).eval()
+    torch.nn.init.normal_(cells.context.out.weight, std=0.1)  # as if trained
+    path = checkpoint.save(tmp_path / "cells.pt", config="", net=checkpoint.net_args(cells),
+                           model=cells.state_dict())
+    dilated = E2SRI(NetConfig(**SMALL, context=8, context_far="dilated")).eval()
+    done = warm_start(dilated, path)
+    assert any(name.startswith("context.far.") for name in done.fresh)
+    assert "context.out.weight" in done.copied
+    # the oracle: the old network with the 16x16 path's columns of the residual zeroed
+    with torch.no_grad():
+        cells.context.out.weight[:, 8:] = 0
+        x = inputs((40, 48), seed=5)
+        assert torch.equal(dilated(*x), cells(*x))
+    # and back again would lose the dilated path: refused
+    path = checkpoint.save(tmp_path / "dil.pt", config="", net=checkpoint.net_args(dilated),
+                           model=dilated.state_dict())
+    with pytest.raises(ValueError, match="far path"):
+        warm_start(E2SRI(NetConfig(**SMALL, context=8)), path)
+
+
+def test_context_far_is_checked():
+    with pytest.raises(ValueError, match="model.context_far"):
+        NetConfig(state="lr", context=8, context_far="pyramid")
+
+
+def context_ablation():
+    import importlib.util
+
+    from tests.model.conftest import ROOT
+    spec = importlib.util.spec_from_file_location("context_ablation",
+                                                  ROOT / "bench" / "context_ablation.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@pytest.mark.parametrize("far", ["cells", "dilated"])
+def test_the_ablation_switches_off_exactly_the_named_path(far):
+    torch.manual_seed(2)
+    net = E2SRI(NetConfig(**SMALL, context=8, context_far=far)).eval()
+    torch.nn.init.normal_(net.context.out.weight, std=0.1)  # as if trained
+    torch.nn.init.normal_(net.context.out.bias, std=0.1)
+    ckpt = {"config": "", "net": checkpoint.net_args(net), "model": net.state_dict()}
+    bench = context_ablation()
+    x = inputs((36, 44), seed=6)
+    plain = E2SRI(NetConfig(**SMALL)).eval()  # the oracle for "none": no branch at all
+    plain.load_state_dict({k: v for k, v in net.state_dict().items()
+                           if not k.startswith("context.")})
+    with torch.no_grad():
+        full = net(*x)
+        for variant in bench.VARIANTS:
+            ablated = E2SRI(net.config).eval()
+            ablated.load_state_dict(bench.ablated(ckpt, variant)["model"])
+            got = ablated(*x)
+            if variant == "full":
+                assert torch.equal(got, full)
+            elif variant == "none":
+                assert torch.allclose(got, plain(*x), atol=1e-6)
+            else:  # one path's share gone: the output moves, and the other path still acts
+                assert not torch.allclose(got, full) and not torch.allclose(got, plain(*x))
+        # the oracle for "no-far": the far path's features replaced by zeros in the sum
+        parts = {}
+        branch = net.context
+        feats = torch.randn(1, 16, 36, 44)
+        weight = bench.ablated(ckpt, "no-far")["model"]["context.out.weight"]
+        near = torch.nn.functional.interpolate(
+            branch.paths[0](cell_means(feats, 4)), scale_factor=4, mode="bilinear",
+            align_corners=False)[..., :36, :44]
+        parts["near"] = torch.nn.functional.conv2d(near, weight[:, :8], branch.out.bias)
+        ablated = E2SRI(net.config).eval()
+        ablated.load_state_dict(bench.ablated(ckpt, "no-far")["model"])
+        assert torch.allclose(ablated.context(feats), feats + parts["near"], atol=1e-5)
+    # the checkpoint itself is untouched
+    assert torch.equal(ckpt["model"]["context.out.weight"], net.context.out.weight)
+
+
+def test_the_ablation_refuses_a_network_without_a_branch():
+    net = E2SRI(NetConfig(**SMALL))
+    ckpt = {"config": "", "net": checkpoint.net_args(net), "model": net.state_dict()}
+    with pytest.raises(ValueError, match="no context branch"):
+        context_ablation().ablated(ckpt, "none")

@@ -79,6 +79,7 @@ TINY = dict(base_channels=8, hr_channels=4, c_blocks=1, blocks=1)
     dict(flow="none"),
     dict(state="lr", context=4),  # pooled cells (partial at odd sizes), bilinear back
     dict(state="lr", fold=2, context=4),
+    dict(state="lr", context=4, context_far="dilated"),  # dilated convs on a tiny cell grid
 ])
 def test_any_network_at_odd_sizes_matches_torch(engine, variant, tmp_path):
     torch.manual_seed(0)
