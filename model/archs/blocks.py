@@ -112,8 +112,9 @@ class ContextBranch(nn.Module):
     cells (not 16x16) through a 3x3 convolution and three more dilated by 2, 4 and 8 (+-15
     cells, +-60 LR pixels), so what it adds can change every 4 LR pixels instead of being a
     bilinear blend of 16-pixel cells, which spreads anything it carries over +-16 pixels
-    whatever the data say (the cloud around moving objects on a static background that
+    (the cloud around moving objects on a static background that
     ``bench/context_ablation.py`` traced to the 16x16 path). The near path is the 4x4 one.
+    Trained (run L, docs/models.md), it learned the same cloud: the grain was not the cause.
     """
 
     def __init__(self, channels: int, width: int, factors: tuple[int, ...] = (4, 16),
