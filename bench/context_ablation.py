@@ -43,9 +43,8 @@ def ablated(ckpt: dict, variant: str) -> dict:
         raise ValueError("the network has no context branch (model.context: 0)")
     out = copy.deepcopy(ckpt)
     weight, bias = out["model"]["context.out.weight"], out["model"]["context.out.bias"]
-    n_paths = weight.shape[1] // width  # near (4x4) first, far last
-    if variant == "no-far":
-        weight[:, (n_paths - 1) * width:] = 0
+    if variant == "no-far":  # the near (4x4) path's columns come first, the far path's last
+        weight[:, -width:] = 0
     elif variant == "no-near":
         weight[:, :width] = 0
     elif variant == "none":

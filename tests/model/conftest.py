@@ -15,6 +15,16 @@ from model.config import TrainConfig
 ROOT = Path(__file__).resolve().parents[2]
 
 
+def bench_module(name: str):
+    """The script ``bench/<name>.py`` imported as a module (bench/ is not a package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, ROOT / "bench" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 @pytest.fixture(scope="session", autouse=True)
 def engine_cache(tmp_path_factory) -> Iterator[Path]:
     """Networks exported for ONNX Runtime / OpenVINO (``reconstruct --engine auto``) go to a

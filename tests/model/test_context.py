@@ -148,14 +148,8 @@ def test_context_far_is_checked():
 
 
 def context_ablation():
-    import importlib.util
-
-    from tests.model.conftest import ROOT
-    spec = importlib.util.spec_from_file_location("context_ablation",
-                                                  ROOT / "bench" / "context_ablation.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    from tests.model.conftest import bench_module
+    return bench_module("context_ablation")
 
 
 @pytest.mark.parametrize("far", ["cells", "dilated"])
@@ -183,17 +177,16 @@ def test_the_ablation_switches_off_exactly_the_named_path(far):
             else:  # one path's share gone: the output moves, and the other path still acts
                 assert not torch.allclose(got, full) and not torch.allclose(got, plain(*x))
         # the oracle for "no-far": the far path's features replaced by zeros in the sum
-        parts = {}
         branch = net.context
         feats = torch.randn(1, 16, 36, 44)
         weight = bench.ablated(ckpt, "no-far")["model"]["context.out.weight"]
         near = torch.nn.functional.interpolate(
             branch.paths[0](cell_means(feats, 4)), scale_factor=4, mode="bilinear",
             align_corners=False)[..., :36, :44]
-        parts["near"] = torch.nn.functional.conv2d(near, weight[:, :8], branch.out.bias)
+        near = torch.nn.functional.conv2d(near, weight[:, :8], branch.out.bias)
         ablated = E2SRI(net.config).eval()
         ablated.load_state_dict(bench.ablated(ckpt, "no-far")["model"])
-        assert torch.allclose(ablated.context(feats), feats + parts["near"], atol=1e-5)
+        assert torch.allclose(ablated.context(feats), feats + near, atol=1e-5)
     # the checkpoint itself is untouched
     assert torch.equal(ckpt["model"]["context.out.weight"], net.context.out.weight)
 

@@ -4,7 +4,6 @@ tiny folder laid out like ../shared/real_events, made here."""
 from __future__ import annotations
 
 import csv
-import importlib.util
 
 import cv2
 import numpy as np
@@ -13,14 +12,11 @@ import pytest
 from model.inference.real_benchmark import find_recordings
 from tests.datagen.test_exposure_windows import write_aedat4_exposed
 from tests.datagen.test_recording import events, write_text
-from tests.model.conftest import ROOT
+from tests.model.conftest import bench_module
 
 
 def bench_real():
-    spec = importlib.util.spec_from_file_location("bench_real", ROOT / "bench" / "bench_real.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return bench_module("bench_real")
 
 
 @pytest.fixture()
