@@ -69,19 +69,30 @@ def test_the_branch_widens_the_receptive_field():
     assert far >= 48  # the 16x16 cells' two convolutions and the interpolation
 
 
-def test_the_shipped_model_warm_starts_a_context_model_exactly(tmp_path):
+def test_a_plain_model_warm_starts_a_context_model_exactly(tmp_path):
+    # the plain source: the shipped x2 network without its context branch (the shipped
+    # model has one since run K), saved as a checkpoint of its own
     shipped = checkpoint.load_model(shipped_checkpoint(2))
-    net = E2SRI(NetConfig(**{**checkpoint.net_args(shipped), "context": 16})).eval()
-    done = warm_start(net, shipped_checkpoint(2))
+    args = {**checkpoint.net_args(shipped), "context": 0}
+    plain = E2SRI(NetConfig(**args)).eval()
+    kept = {k: v for k, v in shipped.state_dict().items() if not k.startswith("context.")}
+    plain.load_state_dict(kept)
+    source = checkpoint.save(tmp_path / "plain.pt", config="", net=args,
+                             model=plain.state_dict())
+    net = E2SRI(NetConfig(**{**args, "context": 16})).eval()
+    done = warm_start(net, source)
     assert done.fresh and all(name.startswith("context.") for name in done.fresh)
     x = inputs((40, 48), seed=3)
     with torch.no_grad():
-        assert torch.equal(net(*x), shipped(*x))
+        assert torch.equal(net(*x), plain(*x))
+    # a context model warm-starts from the shipped (context) model as itself
+    again = E2SRI(NetConfig(**checkpoint.net_args(shipped))).eval()
+    assert warm_start(again, shipped_checkpoint(2)).fresh == ()
+    with torch.no_grad():
+        assert torch.equal(again(*x), shipped(*x))
     # the way back would drop the trained branch: refused
-    path = checkpoint.save(tmp_path / "ctx.pt", config="", net=checkpoint.net_args(net),
-                           model=net.state_dict())
     with pytest.raises(ValueError, match="context branch"):
-        warm_start(E2SRI(NetConfig(**checkpoint.net_args(shipped))), path)
+        warm_start(E2SRI(NetConfig(**args)), shipped_checkpoint(2))
 
 
 def test_a_context_needs_the_lr_state():
