@@ -31,7 +31,7 @@ import functools
 import importlib.util
 import logging
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from importlib.metadata import version
 from pathlib import Path
 from typing import Any, ClassVar
@@ -193,15 +193,18 @@ class OpenVinoEngine:
 
 
 def load_engine(engine: str, net: E2SRI, device: torch.device,
-                sensor_hw: tuple[int, int] | None = None, cache: Path | None = None
+                sensor_hw: tuple[int, int] | None = None, cache: Path | None = None,
+                stack_rule: str = "fixed"
                 ) -> TorchEngine | OnnxRuntimeEngine | OpenVinoEngine:
     """``net``'s forward pass on ``engine`` (``auto`` or one of :data:`ENGINES`), exported
-    into (or reused from) the cache folder ``cache`` (default: :func:`cache_root`)."""
+    into (or reused from) the cache folder ``cache`` (default: :func:`cache_root`).
+    ``stack_rule``: the stack rule ``net`` was trained with (``data.stack_rule``), which
+    the int8 calibration follows."""
     chosen = choose(engine, device)
     if chosen == "torch":
         return TorchEngine(net)
     try:
-        return _compiled(chosen, net, sensor_hw, cache)
+        return _compiled(chosen, net, sensor_hw, cache, stack_rule)
     except Exception as exc:
         if engine != "auto":
             raise
@@ -210,11 +213,14 @@ def load_engine(engine: str, net: E2SRI, device: torch.device,
 
 
 def _compiled(engine: str, net: E2SRI, sensor_hw: tuple[int, int] | None,
-              cache: Path | None) -> OnnxRuntimeEngine | OpenVinoEngine:
+              cache: Path | None, stack_rule: str = "fixed"
+              ) -> OnnxRuntimeEngine | OpenVinoEngine:
     suffix, export = _EXPORTS[engine]
+    calibration = replace(quantize.DEFAULT_CALIBRATION, stack_rule=stack_rule)
     key = CacheKey(weights_digest(net, checkpoint.net_args(net)), engine,
-                   _engine_version(engine), suffix)
-    build = functools.partial(export, net)
+                   _engine_version(engine, calibration), suffix)
+    build = (functools.partial(export, net, calibration=calibration)
+             if engine == "openvino-int8" else functools.partial(export, net))
     threads = torch.get_num_threads()
 
     def make(path: Path) -> OnnxRuntimeEngine | OpenVinoEngine:
@@ -230,11 +236,11 @@ def _compiled(engine: str, net: E2SRI, sensor_hw: tuple[int, int] | None,
         return make(cached_file(key, build, cache, rebuild=True))
 
 
-def _engine_version(engine: str) -> str:
+def _engine_version(engine: str, calibration: quantize.Calibration) -> str:
     """What the cached file of ``engine`` depends on besides the weights: the versions of
     its packages (and, for int8, the calibration recipe)."""
     if engine == "openvino-int8":
-        return f"{version('openvino')}+nncf{version('nncf')}+{quantize.DEFAULT_CALIBRATION.tag}"
+        return f"{version('openvino')}+nncf{version('nncf')}+{calibration.tag}"
     return version(engine)
 
 

@@ -17,7 +17,8 @@ quantised graph serves every recording and is exported once per weights (the cac
 :mod:`model.inference.graph_cache`): a few short sequences of the default dataset recipe on
 the *training* half of its textures (the held-out test textures are never seen), rendered
 by the homography renderer, turned into network inputs exactly as training does
-(:class:`model.data.dataset.ShardSamples`: SBN stacks and DIS flow).
+(:class:`model.data.dataset.ShardSamples`: SBN stacks sized by the stack rule the model was
+trained with, and DIS flow).
 
 INT8 changes the outputs (unlike the float32 engines, which match torch within 1e-6): it is
 never chosen by ``--engine auto``, only when asked for. Its quality against float32 on the
@@ -39,9 +40,10 @@ from model.inference import graph_export
 
 log = logging.getLogger(__name__)
 
-CALIBRATION_VERSION = 2
+CALIBRATION_VERSION = 3
 """Raised when the calibration recipe or what stays float32 changes (it is part of the cache
-key). 2: the lift is quantised too."""
+key). 2: the lift is quantised too. 3: the calibration stacks follow the model's training
+stack rule (``Calibration.stack_rule``)."""
 
 
 @dataclass(frozen=True)
@@ -53,22 +55,29 @@ class Calibration:
         frames: frames per sequence (one sample per frame whose stacks fit).
         samples: calibration inputs used, spread evenly over all the samples.
         seed: the simulation seed.
+        stack_rule: how the calibration inputs' SBN stacks are sized, as the model was
+            trained (``data.stack_rule``: ``fixed`` or ``active``). A model trained on
+            active-pixel stacks calibrated on fixed ones lost 0.2 dB (docs/benchmarks.md).
     """
 
     sequences: int = 4
     frames: int = 24
     samples: int = 64
     seed: int = 20_251_203
+    stack_rule: str = "fixed"
 
     def __post_init__(self) -> None:
         if min(self.sequences, self.frames, self.samples) < 1:
             raise ValueError("calibration needs at least one sequence, frame and sample")
+        if self.stack_rule not in ("fixed", "active"):
+            raise ValueError(f"calibration stack_rule must be fixed or active, got "
+                             f"{self.stack_rule!r}")
 
     @property
     def tag(self) -> str:
         """What the cache key carries of this recipe."""
         return (f"cal{CALIBRATION_VERSION}_{self.sequences}x{self.frames}_{self.samples}"
-                f"_{self.seed}")
+                f"_{self.seed}_{self.stack_rule}")
 
 
 DEFAULT_CALIBRATION = Calibration()
@@ -96,7 +105,8 @@ def calibration_inputs(net: E2SRI, calibration: Calibration | None = None
         "simulation.frames.tail_events": per_stack * (cfg.n_stacks // 2 + 1),
         "textures.split": "train",
         "sequences_per_shard": calibration.sequences})
-    data = DataConfig(crop=None, val_fraction=0.0, flow="dis")
+    data = DataConfig(crop=None, val_fraction=0.0, flow="dis",
+                      stack_rule=calibration.stack_rule)
     with tempfile.TemporaryDirectory(prefix="e2sr-calibration-") as tmp:
         plan = plan_shards(Path(tmp), calibration.sequences, calibration.sequences)[0]
         write_shard(plan, config, calibration.seed, render_threads=1)

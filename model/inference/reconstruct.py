@@ -184,7 +184,8 @@ class Reconstructor:
             if not path:
                 raise ValueError("duo-pass needs --first-pass (a main model checkpoint)")
             first = load_engine(engine, checkpoint.load_model(path, dev), dev, sensor_hw)
-        trained = checkpoint.config_of(state, ckpt).data.stacks
+        data = checkpoint.config_of(state, ckpt).data
+        trained = data.stacks
         trained_hw = tuple(state.get("sensor_hw") or checkpoint.TRAINED_SENSOR_HW)
         if "sensor_hw" not in state:
             log.warning("%s records no training sensor size; assuming the paper's %dx%d "
@@ -192,7 +193,8 @@ class Reconstructor:
         choice = choose_stack(trained.events_per_channel, trained.channels, trained_hw,
                               sensor_hw, events_per_stack, activity)
         return cls(net, first, replace(trained, events_per_channel=choice.events_per_channel),
-                   dev, load_engine(engine, net, dev, sensor_hw), choice)
+                   dev, load_engine(engine, net, dev, sensor_hw, stack_rule=data.stack_rule),
+                   choice)
 
     def with_stacks(self, given: int | None = None, activity: Activity | None = None
                     ) -> Reconstructor:

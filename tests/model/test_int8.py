@@ -108,7 +108,7 @@ def test_the_int8_export_is_reused(shipped_x2, int8_folder, monkeypatch):
     [path] = sorted((int8_folder / "engines").iterdir())
     before = path.stat().st_mtime_ns
 
-    def no_export(*_):
+    def no_export(*_, **__):
         raise AssertionError("quantised again")
 
     monkeypatch.setitem(engines._EXPORTS, "openvino-int8", (".npz", no_export))
@@ -118,6 +118,26 @@ def test_the_int8_export_is_reused(shipped_x2, int8_folder, monkeypatch):
     monkeypatch.setattr(quantize, "DEFAULT_CALIBRATION", quantize.Calibration(samples=9))
     with pytest.raises(AssertionError, match="quantised again"):
         load_engine("openvino-int8", shipped_x2, CPU, (20, 24), int8_folder)
+    # a model trained on active-pixel stacks is calibrated on them: another file too
+    monkeypatch.setattr(quantize, "DEFAULT_CALIBRATION", SMALL)
+    with pytest.raises(AssertionError, match="quantised again"):
+        load_engine("openvino-int8", shipped_x2, CPU, (20, 24), int8_folder,
+                    stack_rule="active")
+
+
+def test_the_calibration_stacks_follow_the_training_stack_rule(shipped_x2):
+    # the active rule sizes each stack by the pixels that fire, at most the fixed rule's
+    # count: on a sequence where about half the frame fires, about half the events
+    def events(rule):
+        inputs = quantize.calibration_inputs(shipped_x2, quantize.Calibration(
+            sequences=1, frames=10, samples=3, seed=99, stack_rule=rule))
+        return np.array([np.abs(x["stacks"]).sum() for x in inputs])
+
+    fixed, active = events("fixed"), events("active")
+    assert len(fixed) == len(active) == 3
+    assert np.all(active < 0.8 * fixed)
+    with pytest.raises(ValueError, match="stack_rule"):
+        quantize.Calibration(stack_rule="area")
 
 
 def test_auto_never_picks_int8_and_a_missing_nncf_is_named(monkeypatch):
