@@ -6,7 +6,8 @@ child streams, so a sequence is the same whichever worker, shard or order produc
 changing e.g. the texture source leaves trajectories and thresholds unchanged. The objects
 (and the static-camera draw) have streams of their own, after the original four, so a
 configuration without objects draws exactly what it drew before objects existed; the
-sensor (``sensor_ranges``) has the last one, for the same reason.
+sensor (``sensor_ranges``) and the flat static-camera background have the last ones, for
+the same reason.
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ import cv2
 import numpy as np
 
 from datagen.sensor_ranges import SensorRanges
-from datagen.textures import TextureSampler
+from datagen.textures import TextureSampler, flat_background
 from esim_lite.config import SimulationConfig
 from esim_lite.events.simulator import EventConfig
 from esim_lite.events.thresholds import ContrastThresholds, sample_thresholds
@@ -35,7 +36,7 @@ from esim_lite.geometry.trajectory import (
 def sequence_streams(seed: int, index: int) -> dict[str, np.random.Generator]:
     """Independent generators for each random component of sequence ``index``."""
     names = ("trajectory", "texture", "thresholds", "noise", "objects", "object_textures",
-             "sensor")
+             "sensor", "background")
     children = np.random.SeedSequence([int(seed), int(index)]).spawn(len(names))
     return {n: np.random.default_rng(c) for n, c in zip(names, children)}
 
@@ -93,6 +94,9 @@ def sample_sequence(sim: SimulationConfig, textures: TextureSampler, seed: int, 
     traj, width_m, height_m = plane_extent_covering(traj, rig.event, aspect=None)
     tex, name = textures.sample(rng["texture"], width_m / height_m,
                                 texture_width(sim, width_m))
+    flat_share = sim.objects.flat_background_share
+    if static and flat_share > 0 and rng["background"].random() < flat_share:
+        tex, name = flat_background(tex.shape, rng["background"]), "flat background"
     thresholds = sample_thresholds(sim.events.thresholds, rig.event.hw, rng["thresholds"])
     plane = PlanarScene(tex, width_m, height_m)
     if not sim.objects.enabled:

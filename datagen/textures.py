@@ -282,6 +282,31 @@ def procedural(kind: str, size: int, rng: np.random.Generator) -> np.ndarray:
     return (img - img.min()) / max(float(img.max() - img.min()), 1e-9)
 
 
+def flat_background(shape: tuple[int, int], rng: np.random.Generator,
+                    level_range: tuple[float, float] = (0.05, 0.9)) -> np.ndarray:
+    """float32[h, w] linear intensity: one level under a gentle illumination field.
+
+    The level is drawn log-uniformly in ``level_range``; on it lie a linear gradient of up
+    to +-20% across the plane and one broad Gaussian bump of up to +-15% (a lamp's fall-off,
+    a shadow), so the field is smooth but not a constant. Used for the background of
+    static-camera sequences (``objects.flat_background_share``).
+    """
+    h, w = shape
+    lo, hi = level_range
+    if not 0 < lo <= hi:
+        raise ValueError(f"level_range must satisfy 0 < min <= max, got {level_range}")
+    level = float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float32)
+    u, v = xx / max(w - 1, 1) - 0.5, yy / max(h - 1, 1) - 0.5
+    theta = rng.uniform(0, 2 * np.pi)
+    field = 1.0 + rng.uniform(0, 0.4) * (np.cos(theta) * u + np.sin(theta) * v)
+    cx, cy = rng.uniform(-0.5, 0.5, 2)
+    sigma = rng.uniform(0.2, 0.5)
+    field += rng.uniform(-0.15, 0.15) * np.exp(-((u - cx) ** 2 + (v - cy) ** 2)
+                                                / (2 * sigma**2))
+    return np.clip(level * field, 1e-3, 1.0).astype(np.float32)
+
+
 def normalised(img: np.ndarray) -> np.ndarray:
     """``img`` stretched so its 1st..99th percentiles span [0, 1] (clipped)."""
     lo, hi = np.percentile(img, (1, 99))

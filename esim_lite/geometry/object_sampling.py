@@ -52,6 +52,12 @@ class ObjectsConfig:
         direction_persistence: 0..1, how much each step keeps the previous direction.
         view_margin: object centres stay within this fraction of the image size outside
             the view (they start there, leave the view and come back).
+        flat_background_share: share of the static-camera sequences whose background is
+            a flat level under a gentle illumination gradient instead of a texture
+            (datagen/textures.py ``flat_background``): where no event ever fires the truth
+            is then one smooth field, so carrying an object's level into its surround costs
+            the loss at first order instead of vanishing in an unknown texture
+            (docs/models.md, run M).
     """
 
     count: tuple[int, int] = (0, 0)
@@ -66,6 +72,7 @@ class ObjectsConfig:
     knot_spacing_s: float = 0.25
     direction_persistence: float = 0.7
     view_margin: float = 0.25
+    flat_background_share: float = 0.0
 
     def __post_init__(self) -> None:
         lo, hi = self.count
@@ -74,6 +81,8 @@ class ObjectsConfig:
                              f"{self.count}")
         if not 0 <= self.static_camera_share <= 1:
             raise ValueError("objects.static_camera_share must be in [0, 1]")
+        if not 0 <= self.flat_background_share <= 1:
+            raise ValueError("objects.flat_background_share must be in [0, 1]")
         lo, hi = self.size_fraction
         if not 0 < lo <= hi <= 1:
             raise ValueError(f"objects.size_fraction must be a range in (0, 1] (an object "

@@ -86,6 +86,46 @@ def test_same_seed_same_objects_and_object_free_configs_draw_as_before(specs):
                                           b.trajectory.pose(0.2).r_wc)
 
 
+def test_flat_backgrounds_replace_only_static_camera_textures(specs):
+    cfg, seqs = specs
+    flat = dynamic_config(**{"simulation.objects.count": "[3, 6]",
+                             "simulation.objects.static_camera_share": 0.5,
+                             "simulation.objects.flat_background_share": 1.0})
+    sampler = TextureSampler(flat.textures)
+    for i, a in enumerate(seqs):
+        b = sample_sequence(flat.simulation, sampler, 11, i)
+        assert b.static_camera == a.static_camera
+        np.testing.assert_array_equal(b.thresholds.pos, a.thresholds.pos)
+        np.testing.assert_array_equal(b.trajectory.pose(0.3).t_wc, a.trajectory.pose(0.3).t_wc)
+        for oa, ob in zip(a.objects, b.objects, strict=True):  # objects keep their textures
+            np.testing.assert_array_equal(oa.surface.texture, ob.surface.texture)
+        tex = b.background.texture
+        assert tex.shape == a.background.texture.shape
+        if not a.static_camera:  # a moving camera keeps its textured plane
+            np.testing.assert_array_equal(tex, a.background.texture)
+            continue
+        assert b.texture_name == "flat background"
+        # one level under a gentle field: within +-40% of its median, no texel-scale detail
+        med = float(np.median(tex))
+        assert tex.min() > 0.6 * med and tex.max() < 1.4 * med
+        step = max(np.abs(np.diff(tex, axis=0)).max(), np.abs(np.diff(tex, axis=1)).max())
+        assert step < 0.01 * med * 100 / min(tex.shape)
+        tex_a = a.background.texture
+        assert np.abs(np.diff(tex_a, axis=1)).mean() > 10 * np.abs(np.diff(tex, axis=1)).mean()
+
+
+def test_flat_background_levels_span_the_range_and_repeat_with_the_seed():
+    from datagen.textures import flat_background
+
+    draws = [flat_background((40, 60), np.random.default_rng(s)) for s in range(200)]
+    medians = np.array([np.median(d) for d in draws])
+    assert medians.min() < 0.1 and medians.max() > 0.6  # dark and bright backgrounds
+    np.testing.assert_array_equal(flat_background((40, 60), np.random.default_rng(3)), draws[3])
+    assert all(d.dtype == np.float32 and 0 < d.min() and d.max() <= 1 for d in draws)
+    with pytest.raises(ValueError, match="level_range"):
+        flat_background((4, 4), np.random.default_rng(0), (0.5, 0.2))
+
+
 def test_compiled_truth_equals_the_numpy_oracle(specs):
     cfg, seqs = specs
     rig = cfg.simulation.camera.rig()
@@ -287,6 +327,7 @@ def test_a_static_camera_fires_only_on_and_around_the_objects():
     ("simulation.objects.depth_fraction", "[0.3, 1.2]", "between the camera"),
     ("simulation.objects.count", "[5, 2]", "objects.count"),
     ("simulation.objects.static_camera_share", "1.5", "static_camera_share"),
+    ("simulation.objects.flat_background_share", "-0.1", "flat_background_share"),
     ("simulation.objects.shapes", "[circle]", "shapes"),
     ("simulation.sampling.max_edge_step_px", "0", "max_edge_step_px"),
 ])
