@@ -115,10 +115,18 @@ class ContextBranch(nn.Module):
     (the cloud around moving objects on a static background that
     ``bench/context_ablation.py`` traced to the 16x16 path). The near path is the 4x4 one.
     Trained (run L, docs/models.md), it learned the same cloud: the grain was not the cause.
+
+    ``global_path`` adds a path that sees the whole frame: the mean over all pixels of a 1x1
+    projection of the features (after a ReLU), concatenated to every pixel's features, a
+    1x1 convolution and a ReLU, then its own zero-initialised 1x1 residual (``g_out``), so a
+    branch without it warm-starts one with it exactly. The cells reach +-63 LR pixels; a
+    never-fired background wider than that was filled with the level its nearest edges imply
+    near them and a prior beyond (the cloud of run M, docs/models.md): with the frame mean
+    every pixel can take the level the frame's edges imply.
     """
 
     def __init__(self, channels: int, width: int, factors: tuple[int, ...] = (4, 16),
-                 far: str = "cells") -> None:
+                 far: str = "cells", global_path: bool = False) -> None:
         super().__init__()
         if far not in ("cells", "dilated"):
             raise ValueError(f"far must be cells or dilated, got {far!r}")
@@ -134,6 +142,13 @@ class ContextBranch(nn.Module):
         self.out = nn.Conv2d(width * n_paths, channels, 1)
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
+        self.global_path = global_path
+        if global_path:
+            self.g_in = nn.Conv2d(channels, width, 1)
+            self.g_mix = nn.Conv2d(channels + width, width, 1)
+            self.g_out = nn.Conv2d(width, channels, 1)
+            nn.init.zeros_(self.g_out.weight)
+            nn.init.zeros_(self.g_out.bias)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         h, w = x.shape[-2:]
@@ -143,7 +158,12 @@ class ContextBranch(nn.Module):
         if self.far_kind == "dilated":
             parts.append(F.interpolate(self.far(cell_means(x, FAR_CELL)), scale_factor=FAR_CELL,
                                        mode="bilinear", align_corners=False)[..., :h, :w])
-        return x + self.out(torch.cat(parts, dim=1))
+        y = x + self.out(torch.cat(parts, dim=1))
+        if self.global_path:
+            g = F.relu(self.g_in(x)).mean(dim=(-2, -1), keepdim=True)
+            z = F.relu(self.g_mix(torch.cat([x, g.expand(-1, -1, h, w)], dim=1)))
+            y = y + self.g_out(z)
+        return y
 
 
 FAR_CELL = 4

@@ -79,6 +79,9 @@ class NetConfig:
             far with a 4-pixel grain (:class:`model.archs.blocks.ContextBranch`). A
             ``cells`` model warm-starts a ``dilated`` one with the far path fresh and its
             share of the residual at zero: it computes what it did without its 16x16 path.
+        context_global: add the branch's whole-frame path (the frame mean of its features
+            beside every pixel, its own zero-initialised residual); a branch without it
+            warm-starts one with it exactly.
         history: time constants, in stacks, of the event-history input
             (:mod:`model.data.history`: for every pixel ``exp(-age / tau)``, its age the
             events since it last fired, before the output): one channel each, appended to
@@ -101,6 +104,7 @@ class NetConfig:
     lift: Literal["shuffle", "smooth"] = "shuffle"
     context: int = 0
     context_far: Literal["cells", "dilated"] = "cells"
+    context_global: bool = False
     history: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
@@ -114,6 +118,8 @@ class NetConfig:
             raise ValueError(f"model.lift must be shuffle or smooth, got {self.lift!r}")
         if self.context < 0 or (self.context and self.state != "lr"):
             raise ValueError("model.context must be >= 0, and > 0 only with state: lr")
+        if self.context_global and not self.context:
+            raise ValueError("model.context_global needs a context branch (model.context > 0)")
         if self.context_far not in ("cells", "dilated"):
             raise ValueError(f"model.context_far must be cells or dilated, got "
                              f"{self.context_far!r}")
@@ -167,7 +173,8 @@ class E2SRI(nn.Module):
                                      conv(h, 1, act=False))
             if cfg.context:
                 self.context = ContextBranch((cfg.n_stacks - 1) * b, cfg.context,
-                                             far=cfg.context_far)
+                                             far=cfg.context_far,
+                                             global_path=cfg.context_global)
         self.flow_net = FlowNet(cfg.stack_channels) if cfg.flow == "learned" else None
 
     def forward(self, stacks: torch.Tensor, central: torch.Tensor,

@@ -207,3 +207,42 @@ def test_the_ablation_refuses_a_network_without_a_branch():
     ckpt = {"config": "", "net": checkpoint.net_args(net), "model": net.state_dict()}
     with pytest.raises(ValueError, match="no context branch"):
         context_ablation().ablated(ckpt, "none")
+
+
+def test_the_whole_frame_path_starts_at_zero_and_reaches_every_pixel():
+    torch.manual_seed(2)
+    net = E2SRI(NetConfig(**SMALL, context=8, context_global=True)).eval()
+    x = torch.randn(1, 16, 37, 51)
+    assert torch.equal(net.context(x), x)  # both residuals start at zero
+    torch.nn.init.normal_(net.context.g_out.weight, std=0.1)  # as if trained
+    assert reach(net, hw=(300, 300)) >= 149  # the far corner: beyond the cells' +-63
+    branch = ContextBranch(16, 8, global_path=True)
+    torch.nn.init.normal_(branch.g_out.weight, std=0.1)
+    # the path reads the frame mean: a change in one corner of a frame far wider than the
+    # cells reach moves the pixels in the opposite corner
+    base = torch.randn(1, 16, 64, 200, generator=torch.Generator().manual_seed(4))
+    moved = base.clone()
+    moved[..., 60:, 190:] += 2.0
+    with torch.no_grad():
+        d = (branch(moved) - branch(base))[..., :8, :8]
+    assert d.abs().amax() > 1e-4  # 180 pixels away
+
+
+def test_a_context_model_warm_starts_a_whole_frame_one_exactly(tmp_path):
+    torch.manual_seed(3)
+    src = E2SRI(NetConfig(**SMALL, context=8)).eval()
+    torch.nn.init.normal_(src.context.out.weight, std=0.1)  # as if trained
+    path = checkpoint.save(tmp_path / "ctx.pt", config="", net=checkpoint.net_args(src),
+                           model=src.state_dict())
+    net = E2SRI(NetConfig(**SMALL, context=8, context_global=True)).eval()
+    done = warm_start(net, path)
+    assert done.fresh and all(n.startswith("context.g_") for n in done.fresh)
+    x = inputs((40, 48), seed=6)
+    with torch.no_grad():
+        assert torch.equal(net(*x), src(*x))
+    path = checkpoint.save(tmp_path / "glob.pt", config="", net=checkpoint.net_args(net),
+                           model=net.state_dict())
+    with pytest.raises(ValueError, match="whole-frame path"):
+        warm_start(E2SRI(NetConfig(**SMALL, context=8)), path)
+    with pytest.raises(ValueError, match="context_global"):
+        NetConfig(**SMALL, context_global=True)  # no branch to hold it

@@ -80,12 +80,15 @@ TINY = dict(base_channels=8, hr_channels=4, c_blocks=1, blocks=1)
     dict(state="lr", context=4),  # pooled cells (partial at odd sizes), bilinear back
     dict(state="lr", fold=2, context=4),
     dict(state="lr", context=4, context_far="dilated"),  # dilated convs on a tiny cell grid
+    dict(state="lr", context=4, context_global=True),  # the frame mean, at every size
 ])
 def test_any_network_at_odd_sizes_matches_torch(engine, variant, tmp_path):
     torch.manual_seed(0)
     net = E2SRI(NetConfig(**{**TINY, **variant})).eval()
     if net.config.context:  # its residual starts at zero: give it weight to compare
         torch.nn.init.normal_(net.context.out.weight, std=0.3)
+    if net.config.context_global:
+        torch.nn.init.normal_(net.context.g_out.weight, std=0.3)
     runner = load_engine(engine, net, CPU, (21, 27), cache=tmp_path)
     for k, hw in enumerate([(21, 27), (16, 16), (9, 31)]):
         assert max_difference(runner, net, hw, seed=k) < 1e-4
