@@ -131,12 +131,17 @@ def test_the_dilated_far_path_reaches_as_far_with_a_finer_grain():
     assert torch.maximum((ys - 62).abs(), (xs - 62).abs()).max() >= 48
 
 
+def trained_context_model(path, seed, **cfg) -> tuple[E2SRI, object]:
+    """A small context model with its branch's residual as if trained, saved to ``path``."""
+    torch.manual_seed(seed)
+    net = E2SRI(NetConfig(**SMALL, context=8, **cfg)).eval()
+    torch.nn.init.normal_(net.context.out.weight, std=0.1)
+    return net, checkpoint.save(path, config="", net=checkpoint.net_args(net),
+                                model=net.state_dict())
+
+
 def test_a_cells_model_warm_starts_a_dilated_one_as_itself_without_its_16x16_path(tmp_path):
-    torch.manual_seed(1)
-    cells = E2SRI(NetConfig(**SMALL, context=8)).eval()
-    torch.nn.init.normal_(cells.context.out.weight, std=0.1)  # as if trained
-    path = checkpoint.save(tmp_path / "cells.pt", config="", net=checkpoint.net_args(cells),
-                           model=cells.state_dict())
+    cells, path = trained_context_model(tmp_path / "cells.pt", 1)
     dilated = E2SRI(NetConfig(**SMALL, context=8, context_far="dilated")).eval()
     done = warm_start(dilated, path)
     assert any(name.startswith("context.far.") for name in done.fresh)
@@ -229,11 +234,7 @@ def test_the_whole_frame_path_starts_at_zero_and_reaches_every_pixel():
 
 
 def test_a_context_model_warm_starts_a_whole_frame_one_exactly(tmp_path):
-    torch.manual_seed(3)
-    src = E2SRI(NetConfig(**SMALL, context=8)).eval()
-    torch.nn.init.normal_(src.context.out.weight, std=0.1)  # as if trained
-    path = checkpoint.save(tmp_path / "ctx.pt", config="", net=checkpoint.net_args(src),
-                           model=src.state_dict())
+    src, path = trained_context_model(tmp_path / "ctx.pt", 3)
     net = E2SRI(NetConfig(**SMALL, context=8, context_global=True)).eval()
     done = warm_start(net, path)
     assert done.fresh and all(n.startswith("context.g_") for n in done.fresh)
