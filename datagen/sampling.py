@@ -92,11 +92,13 @@ def sample_sequence(sim: SimulationConfig, textures: TextureSampler, seed: int, 
     if static:
         traj = static_trajectory(traj.pose(0.0), sim.duration_s, traj.knot_spacing_s)
     traj, width_m, height_m = plane_extent_covering(traj, rig.event, aspect=None)
-    tex, name = textures.sample(rng["texture"], width_m / height_m,
-                                texture_width(sim, width_m))
+    aspect, texels = width_m / height_m, texture_width(sim, width_m)
     flat_share = sim.objects.flat_background_share
     if static and flat_share > 0 and rng["background"].random() < flat_share:
-        tex, name = flat_background(tex.shape, rng["background"]), "flat background"
+        tex, name = flat_background(textures.shape(aspect, texels), rng["background"]), \
+            "flat background"
+    else:  # (the texture stream serves only this draw: skipping it changes nothing else)
+        tex, name = textures.sample(rng["texture"], aspect, texels)
     thresholds = sample_thresholds(sim.events.thresholds, rig.event.hw, rng["thresholds"])
     plane = PlanarScene(tex, width_m, height_m)
     if not sim.objects.enabled:

@@ -335,6 +335,13 @@ class TextureSampler:
     def skipped(self) -> int:
         return sum(lib.skipped for lib in self.libraries)
 
+    def shape(self, aspect: float, width: int) -> tuple[int, int]:
+        """(h, w) of the texture :meth:`sample` draws for a plane of ``aspect`` and
+        ``width`` texels across (capped at ``max_texels`` on the longest side)."""
+        scale = min(1.0, self.config.max_texels / max(width, width / aspect))
+        w = max(16, int(round(width * scale)))
+        return max(16, int(round(w / aspect))), w
+
     def sample(self, rng: np.random.Generator, aspect: float, width: int) -> tuple[np.ndarray,
                                                                                    str]:
         """(float32[h, w] linear texture with ``w/h ~= aspect``, its name).
@@ -344,9 +351,7 @@ class TextureSampler:
             width: texels across (capped at ``max_texels`` on the longest side).
         """
         cfg = self.config
-        scale = min(1.0, cfg.max_texels / max(width, width / aspect))
-        w = max(16, int(round(width * scale)))
-        h = max(16, int(round(w / aspect)))
+        h, w = self.shape(aspect, width)
         for _ in range(50):
             if rng.random() < cfg.procedural_fraction:
                 kinds = cfg.procedural_kinds

@@ -11,7 +11,7 @@ from scipy.ndimage import binary_dilation
 
 from datagen.config import DatagenConfig
 from datagen.sampling import sample_sequence
-from datagen.textures import TextureSampler
+from datagen.textures import TextureSampler, flat_background
 from esim_lite.config import CameraConfig, SimulationConfig
 from esim_lite.core.dataconf import ConfigError, from_mapping, load_config
 from esim_lite.core.events import Events
@@ -115,8 +115,6 @@ def test_flat_backgrounds_replace_only_static_camera_textures(specs):
 
 
 def test_flat_background_levels_span_the_range_and_repeat_with_the_seed():
-    from datagen.textures import flat_background
-
     draws = [flat_background((40, 60), np.random.default_rng(s)) for s in range(200)]
     medians = np.array([np.median(d) for d in draws])
     assert medians.min() < 0.1 and medians.max() > 0.6  # dark and bright backgrounds
