@@ -123,10 +123,24 @@ class ContextBranch(nn.Module):
     never-fired background wider than that was filled with the level its nearest edges imply
     near them and a prior beyond (the cloud of run M, docs/models.md): with the frame mean
     every pixel can take the level the frame's edges imply.
+
+    ``support`` adds a path that averages only where events fired (normalised convolution,
+    Knutsson and Westin 1993, filled coarse to fine as push-pull does): a 1x1 projection of
+    the features (after a ReLU) is averaged over the fired pixels of each ``f x f`` cell
+    (``f`` the branch's largest factor) and of the whole frame (:func:`support_means`);
+    a cell where few pixels fired takes the frame's fired mean in proportion
+    (:func:`push_pull`). That map, brought back bilinearly, and the fired shares of the cell
+    and of the frame are concatenated to every pixel's features, mixed by a 1x1 convolution
+    and a ReLU, and added through their own zero-initialised 1x1 residual (``s_out``).
+    Every other path averages all pixels, fired or not, so over a static background that
+    never fired the cells far from a moving object hold nothing, and the network fills
+    them with a constant prior while the cells beside the object carry its level (the cloud
+    of runs K to N, docs/models.md); this path gives the far cells what the fired pixels
+    say, however few and wherever they are. ``forward`` then needs the support map.
     """
 
     def __init__(self, channels: int, width: int, factors: tuple[int, ...] = (4, 16),
-                 far: str = "cells", global_path: bool = False) -> None:
+                 far: str = "cells", global_path: bool = False, support: bool = False) -> None:
         super().__init__()
         if far not in ("cells", "dilated"):
             raise ValueError(f"far must be cells or dilated, got {far!r}")
@@ -149,8 +163,17 @@ class ContextBranch(nn.Module):
             self.g_out = nn.Conv2d(width, channels, 1)
             nn.init.zeros_(self.g_out.weight)
             nn.init.zeros_(self.g_out.bias)
+        self.support = support
+        if support:
+            self.s_in = nn.Conv2d(channels, width, 1)
+            self.s_mix = nn.Conv2d(channels + width + 2, width, 1)
+            self.s_out = nn.Conv2d(width, channels, 1)
+            nn.init.zeros_(self.s_out.weight)
+            nn.init.zeros_(self.s_out.bias)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, support: torch.Tensor | None = None) -> torch.Tensor:
+        """``x``: ``(B, C, H, W)`` features; ``support``: ``(B, 1, H, W)``, 1 where an event
+        fired in any stack, 0 elsewhere (needed, and read, only by the support path)."""
         h, w = x.shape[-2:]
         parts = [F.interpolate(path(cell_means(x, f)), scale_factor=f, mode="bilinear",
                                align_corners=False)[..., :h, :w]
@@ -163,7 +186,52 @@ class ContextBranch(nn.Module):
             g = F.relu(self.g_in(x)).mean(dim=(-2, -1), keepdim=True)
             z = F.relu(self.g_mix(torch.cat([x, g.expand(-1, -1, h, w)], dim=1)))
             y = y + self.g_out(z)
+        if self.support:
+            if support is None or support.shape != (x.shape[0], 1, h, w):
+                raise ValueError(f"the support path needs a (B, 1, {h}, {w}) support map, got "
+                                 f"{None if support is None else tuple(support.shape)}")
+            f = max(self.factors)
+            p = F.relu(self.s_in(x))
+            cells, share, frame, frame_share = support_means(p, support, f)
+            filled = F.interpolate(push_pull(cells, share, frame), scale_factor=f,
+                                   mode="bilinear", align_corners=False)[..., :h, :w]
+            share = F.interpolate(share, scale_factor=f, mode="bilinear",
+                                  align_corners=False)[..., :h, :w]
+            z = F.relu(self.s_mix(torch.cat([x, filled, share,
+                                             frame_share.expand(-1, -1, h, w)], dim=1)))
+            y = y + self.s_out(z)
         return y
+
+
+PUSH_PULL_FULL = 1 / 16
+"""The share of fired pixels at which a cell's own fired mean is trusted fully in
+:func:`push_pull` (16 of a 16x16 cell's 256 pixels); below it the frame's fills in."""
+
+
+def support_means(p: torch.Tensor, support: torch.Tensor, f: int
+                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Means of ``p`` over the fired pixels (``support`` 1) of each ``f x f`` cell and of the
+    whole frame, with the fired shares: ``(cell means, cell shares, frame mean, frame
+    share)``, the cells ``(B, C, ceil(H/f), ceil(W/f))``, the frame ``(B, C, 1, 1)``. A
+    cell or frame where nothing fired has mean 0. Pixels that did not fire do not count,
+    whatever ``p`` holds there."""
+    share = cell_means(support, f)
+    cells = cell_means(p * support, f) / share.clamp_min(SUPPORT_EPS)
+    frame_share = support.mean(dim=(-2, -1), keepdim=True)
+    frame = (p * support).mean(dim=(-2, -1), keepdim=True) / frame_share.clamp_min(SUPPORT_EPS)
+    return cells, share, frame, frame_share
+
+
+SUPPORT_EPS = 1e-6
+"""Floor of a fired share before dividing (where nothing fired the sum is 0 too)."""
+
+
+def push_pull(cells: torch.Tensor, share: torch.Tensor, frame: torch.Tensor
+              ) -> torch.Tensor:
+    """Each cell's fired mean where enough fired, the frame's where none did, and in
+    proportion between: weight ``min(1, share / PUSH_PULL_FULL)`` on the cell's own."""
+    trust = (share / PUSH_PULL_FULL).clamp(max=1.0)
+    return trust * cells + (1.0 - trust) * frame
 
 
 FAR_CELL = 4

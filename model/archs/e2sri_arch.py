@@ -82,6 +82,11 @@ class NetConfig:
         context_global: add the branch's whole-frame path (the frame mean of its features
             beside every pixel, its own zero-initialised residual); a branch without it
             warm-starts one with it exactly.
+        context_support: add the branch's support path (:class:`model.archs.blocks.ContextBranch`:
+            means over the pixels where an event fired, per 16x16 cell and over the frame,
+            a cell with too few filled from the frame's; its own zero-initialised residual),
+            so a never-fired region far from every event gets what the fired pixels say
+            instead of a constant prior; a branch without it warm-starts one with it exactly.
         history: time constants, in stacks, of the event-history input
             (:mod:`model.data.history`: for every pixel ``exp(-age / tau)``, its age the
             events since it last fired, before the output): one channel each, appended to
@@ -105,6 +110,7 @@ class NetConfig:
     context: int = 0
     context_far: Literal["cells", "dilated"] = "cells"
     context_global: bool = False
+    context_support: bool = False
     history: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
@@ -120,6 +126,8 @@ class NetConfig:
             raise ValueError("model.context must be >= 0, and > 0 only with state: lr")
         if self.context_global and not self.context:
             raise ValueError("model.context_global needs a context branch (model.context > 0)")
+        if self.context_support and not self.context:
+            raise ValueError("model.context_support needs a context branch (model.context > 0)")
         if self.context_far not in ("cells", "dilated"):
             raise ValueError(f"model.context_far must be cells or dilated, got "
                              f"{self.context_far!r}")
@@ -174,7 +182,8 @@ class E2SRI(nn.Module):
             if cfg.context:
                 self.context = ContextBranch((cfg.n_stacks - 1) * b, cfg.context,
                                              far=cfg.context_far,
-                                             global_path=cfg.context_global)
+                                             global_path=cfg.context_global,
+                                             support=cfg.context_support)
         self.flow_net = FlowNet(cfg.stack_channels) if cfg.flow == "learned" else None
 
     def forward(self, stacks: torch.Tensor, central: torch.Tensor,
@@ -202,7 +211,9 @@ class E2SRI(nn.Module):
             state = self.down(new_state)
         features = torch.cat(outputs, dim=1)
         if cfg.context:
-            features = self.context(features)
+            fired = ((stacks != 0).sum(dim=(1, 2)) > 0).to(features.dtype).unsqueeze(1) \
+                if cfg.context_support else None
+            features = self.context(features, fired)
         out = self.mix(features)
         return out[..., :hgt * cfg.scale, :wid * cfg.scale] if f > 1 else out
 

@@ -4,7 +4,7 @@ Only the scale, the lift's ending (``lift``: the parameter-free anti-grid filter
 context branch (``context``: its tensors are left fresh, its residual starting at zero;
 ``context_far`` from ``cells`` to ``dilated``: the 16x16 path is dropped, the dilated one left
 fresh and its columns of the residual zero; ``context_global`` added: its whole-frame path
-fresh, its own residual zero) and
+fresh, its own residual zero; ``context_support`` added: likewise) and
 the event-history input (``history``, added to a model without one: the first convolutions
 of EFR get new input columns, set to zero, so the network computes exactly what it did) may
 differ between the two networks. Every tensor whose name and shape agree
@@ -31,9 +31,10 @@ from model.archs.e2sri_arch import E2SRI, NetConfig
 log = logging.getLogger(__name__)
 
 LIFT = "mix.1"  # the sub-pixel convolution of the LR-state variant
-FREE = ("scale", "lift", "context", "context_far", "context_global", "history")  # what a
-# warm start may change: no tensor, or new ones that start at zero (the context branch's
-# residuals, the history's input columns)
+# what a warm start may change: no tensor, or new ones that start at zero (the context
+# branch's residuals, the history's input columns)
+FREE = ("scale", "lift", "context", "context_far", "context_global", "context_support",
+        "history")
 WIDENED = ("efr0.0.0.weight", "efr.0.0.weight")  # first convolutions that read the central
 # input: the history's channels are inserted after the old central channels
 
@@ -87,7 +88,7 @@ def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
     new = net.config
     if dataclasses.replace(old, scale=new.scale, lift=new.lift, context=new.context,
                            context_far=new.context_far, context_global=new.context_global,
-                           history=new.history) != new:
+                           context_support=new.context_support, history=new.history) != new:
         differ = [f.name for f in dataclasses.fields(NetConfig) if f.name not in FREE
                   and getattr(old, f.name) != getattr(new, f.name)]
         raise ValueError(f"{source}: its network differs in {', '.join(differ)}; a warm start "
@@ -99,6 +100,9 @@ def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
     if old.context_global and not new.context_global:
         raise ValueError(f"{source}: its context branch's whole-frame path would be lost "
                          f"(model.context_global: false)")
+    if old.context_support and not new.context_support:
+        raise ValueError(f"{source}: its context branch's support path would be lost "
+                         f"(model.context_support: false)")
     if old.context and old.context_far != new.context_far and old.context_far != "cells":
         raise ValueError(f"{source}: its context branch's far path ({old.context_far}) "
                          f"would be lost (model.context_far: {new.context_far})")

@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from model import checkpoint
-from model.archs.blocks import ContextBranch, cell_means
+from model.archs.blocks import PUSH_PULL_FULL, ContextBranch, cell_means, push_pull, support_means
 from model.archs.e2sri_arch import E2SRI, NetConfig
 from model.inference.pretrained import shipped_checkpoint
 from model.training.warm_start import warm_start
@@ -247,3 +247,75 @@ def test_a_context_model_warm_starts_a_whole_frame_one_exactly(tmp_path):
         warm_start(E2SRI(NetConfig(**SMALL, context=8)), path)
     with pytest.raises(ValueError, match="context_global"):
         NetConfig(**SMALL, context_global=True)  # no branch to hold it
+
+
+def test_support_means_count_only_the_pixels_that_fired():
+    g = torch.Generator().manual_seed(7)
+    p = torch.randn(2, 3, 37, 51, generator=g)
+    fired = (torch.rand(2, 1, 37, 51, generator=g) < 0.2).float()
+    fired[0, :, :16, :16] = 0  # a cell where nothing fired
+    cells, share, frame, frame_share = support_means(p, fired, 16)
+    # against a direct loop over the cells (border cells hold fewer pixels)
+    for b in range(2):
+        for i in range(cells.shape[-2]):
+            for j in range(cells.shape[-1]):
+                m = fired[b, 0, i * 16:(i + 1) * 16, j * 16:(j + 1) * 16].bool()
+                want = p[b, :, i * 16:(i + 1) * 16, j * 16:(j + 1) * 16][:, m].mean(dim=1) \
+                    if m.any() else torch.zeros(3)
+                assert torch.allclose(cells[b, :, i, j], want, atol=1e-5)
+                assert share[b, 0, i, j] == pytest.approx(m.float().mean().item(), abs=1e-6)
+        want = p[b][:, fired[b, 0].bool()].mean(dim=1)
+        assert torch.allclose(frame[b, :, 0, 0], want, atol=1e-5)
+    assert torch.equal(cells[0, :, 0, 0], torch.zeros(3))
+    # what unfired pixels hold does not count
+    again = support_means(p + 100.0 * (1 - fired), fired, 16)
+    for a, b in zip(again, (cells, share, frame, frame_share)):
+        assert torch.allclose(a, b, atol=1e-4)
+
+
+def test_push_pull_fills_a_cell_from_the_frame_in_proportion_to_what_fired():
+    cells = torch.tensor([[[[1.0, 1.0, 1.0]]]])
+    share = torch.tensor([[[[0.0, PUSH_PULL_FULL / 4, 0.5]]]])
+    frame = torch.tensor([[[[5.0]]]])
+    assert torch.allclose(push_pull(cells, share, frame), torch.tensor([[[[5.0, 4.0, 1.0]]]]))
+
+
+def test_the_support_path_carries_the_fired_pixels_level_past_the_cells_reach():
+    torch.manual_seed(3)
+    branch = ContextBranch(16, 8, support=True).eval()
+    x = torch.randn(1, 16, 64, 300)
+    fired = torch.zeros(1, 1, 64, 300)
+    fired[..., 20:44, 250:290] = 1  # events only near the right edge
+    assert torch.equal(branch(x, fired), x)  # its residual starts at zero
+    torch.nn.init.normal_(branch.s_out.weight, std=0.1)  # as if trained
+    with torch.no_grad():
+        base = branch(x, fired)[..., :8, :8]  # 240 pixels from any event
+        moved = x.clone()
+        moved[..., 20:44, 250:290] += 2.0  # the fired pixels' features
+        assert (branch(moved, fired)[..., :8, :8] - base).abs().amax() > 1e-3
+        quiet = x.clone()
+        quiet[..., :, 150:] += 2.0 * (1 - fired[..., :, 150:])  # far unfired pixels only
+        assert torch.allclose(branch(quiet, fired)[..., :8, :8], base, atol=1e-5)
+    with pytest.raises(ValueError, match="support map"):
+        branch(x)
+
+
+def test_a_context_model_warm_starts_a_support_one_exactly(tmp_path):
+    src, path = trained_context_model(tmp_path / "ctx.pt", 4)
+    net = E2SRI(NetConfig(**SMALL, context=8, context_support=True)).eval()
+    done = warm_start(net, path)
+    assert done.fresh and all(n.startswith("context.s_") for n in done.fresh)
+    stacks, central, flows = inputs((40, 48), seed=8)
+    stacks = stacks * (torch.rand(stacks.shape[-2:]) < 0.1)  # events at a tenth of the pixels
+    with torch.no_grad():
+        assert torch.equal(net(stacks, central, flows), src(stacks, central, flows))
+        torch.nn.init.normal_(net.context.s_out.weight, std=0.1)
+        # no event anywhere: the shares and means are 0, not a division by zero
+        blank = torch.zeros_like(stacks)
+        assert torch.isfinite(net(blank, blank[:, 1], flows)).all()
+    path = checkpoint.save(tmp_path / "sup.pt", config="", net=checkpoint.net_args(net),
+                           model=net.state_dict())
+    with pytest.raises(ValueError, match="support path"):
+        warm_start(E2SRI(NetConfig(**SMALL, context=8)), path)
+    with pytest.raises(ValueError, match="context_support"):
+        NetConfig(**SMALL, context_support=True)  # no branch to hold it

@@ -33,6 +33,8 @@ def inputs(config: NetConfig, hw: tuple[int, int], seed: int = 0):
     rng = np.random.default_rng(seed)
     n, c = config.n_stacks, config.stack_channels
     stacks = rng.integers(0, 256, (n, c, *hw)).astype(np.uint8)
+    if config.context_support:  # events at a fifth of the pixels: a support map with holes
+        stacks[:, :, rng.random(hw) > 0.2] = 128
     x = torch.from_numpy(stack_to_input(stacks))[None]
     flows = torch.from_numpy(rng.normal(0, 2, (1, n, 2, *hw)).astype(np.float32))
     central = x[:, n // 2] if config.central == "stack" else \
@@ -81,6 +83,8 @@ TINY = dict(base_channels=8, hr_channels=4, c_blocks=1, blocks=1)
     dict(state="lr", fold=2, context=4),
     dict(state="lr", context=4, context_far="dilated"),  # dilated convs on a tiny cell grid
     dict(state="lr", context=4, context_global=True),  # the frame mean, at every size
+    dict(state="lr", context=4, context_support=True),  # means over the fired pixels
+    dict(state="lr", fold=2, context=4, context_support=True),
 ])
 def test_any_network_at_odd_sizes_matches_torch(engine, variant, tmp_path):
     torch.manual_seed(0)
@@ -89,6 +93,8 @@ def test_any_network_at_odd_sizes_matches_torch(engine, variant, tmp_path):
         torch.nn.init.normal_(net.context.out.weight, std=0.3)
     if net.config.context_global:
         torch.nn.init.normal_(net.context.g_out.weight, std=0.3)
+    if net.config.context_support:
+        torch.nn.init.normal_(net.context.s_out.weight, std=0.3)
     runner = load_engine(engine, net, CPU, (21, 27), cache=tmp_path)
     for k, hw in enumerate([(21, 27), (16, 16), (9, 31)]):
         assert max_difference(runner, net, hw, seed=k) < 1e-4
