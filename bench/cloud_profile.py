@@ -36,7 +36,7 @@ def distance_from(support: np.ndarray) -> np.ndarray:
     import cv2
 
     outside = (~support.astype(bool)).astype(np.uint8)
-    return cv2.distanceTransform(outside, cv2.DIST_L2, 5)
+    return cv2.distanceTransform(outside, cv2.DIST_L2, cv2.DIST_MASK_PRECISE)
 
 
 def profile(fitted: list[np.ndarray], targets: list[np.ndarray], supports: list[np.ndarray]
