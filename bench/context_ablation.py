@@ -4,7 +4,10 @@ branch's residual switched off, scored where no event fired.
 Variants (each written as a checkpoint under ``--out``, ``context.out`` columns zeroed):
 ``full``; ``no-far`` (the far path off: the 16x16 cells of ``context_far: cells``, the
 dilated path of ``dilated``); ``no-near`` (the 4x4 path off); ``none`` (the whole residual,
-bias included: the network as if it had no branch). Each is scored on a static-camera
+bias included: the network as if it had no branch); and with ``--gate TAU`` (repeatable)
+``gate-TAU``: the far path off only where the event history says no event fired for many
+times ``TAU`` stacks (``model.context_gate``, every tensor copied, docs/training.md). Each
+is scored on a static-camera
 split (``evaluate --normalize observed``: metrics inside the fired region, and
 ``invented``, the share of pixels outside it drawn more than 0.04 from their median level;
 then ``--normalize affine`` on whole frames) and, when ``--real`` holds them, on the real
@@ -53,6 +56,29 @@ def ablated(ckpt: dict, variant: str) -> dict:
     return out
 
 
+def gated(source: str, tau: float) -> dict:
+    """Checkpoint ``source``'s network with the history gate of time constant ``tau``
+    (``model.context_gate``; the history channel added to its input if it has none, its
+    columns zero, so only the gate changes what it computes)."""
+    import dataclasses
+
+    from esim_lite.core.dataconf import to_mapping, to_yaml
+    from model import checkpoint
+    from model.archs.e2sri_arch import E2SRI
+    from model.training.warm_start import warm_start
+
+    ckpt = checkpoint.load(source)
+    cfg = checkpoint.config_of(ckpt, source)
+    old = checkpoint.model_from(ckpt, source=source).config
+    history = old.history if tau in old.history else old.history + (float(tau),)
+    if old.history and history != old.history:
+        raise ValueError(f"its event history ({list(old.history)}) has no time constant {tau}")
+    net = E2SRI(dataclasses.replace(old, history=history, context_gate=float(tau)))
+    warm_start(net, source)
+    return {**ckpt, "model": net.state_dict(), "net": to_mapping(net.config),
+            "config": to_yaml(dataclasses.replace(cfg, model=net.config))}
+
+
 def rows(path: Path, **match: str) -> list[dict[str, str]]:
     with open(path, newline="") as fh:
         return [r for r in csv.DictReader(fh) if all(r.get(k) == v for k, v in match.items())]
@@ -78,6 +104,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="real recordings folder (skipped when absent)")
     p.add_argument("--out", default="out/context_ablation")
     p.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
+    p.add_argument("--gate", type=float, action="append", default=[], metavar="TAU",
+                   help="add the variant gate-TAU: the far path gated by the event history")
     p.add_argument("--every", type=int, default=4)
     args = p.parse_args(argv)
 
@@ -88,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         ckpt = checkpoint.load(args.checkpoint)
         variants = {v: ablated(ckpt, v) for v in args.variants}
+        variants.update({f"gate-{t:g}": gated(args.checkpoint, t) for t in args.gate})
     except (OSError, ValueError) as exc:
         print(f"context_ablation: {args.checkpoint}: {exc}", file=sys.stderr)
         return 2

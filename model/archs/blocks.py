@@ -171,9 +171,12 @@ class ContextBranch(nn.Module):
             nn.init.zeros_(self.s_out.weight)
             nn.init.zeros_(self.s_out.bias)
 
-    def forward(self, x: torch.Tensor, support: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, support: torch.Tensor | None = None,
+                gate: torch.Tensor | None = None) -> torch.Tensor:
         """``x``: ``(B, C, H, W)`` features; ``support``: ``(B, 1, H, W)``, 1 where an event
-        fired in any stack, 0 elsewhere (needed, and read, only by the support path)."""
+        fired in any stack, 0 elsewhere (needed, and read, only by the support path);
+        ``gate``: ``(B, 1, H, W)`` in [0, 1], the weight of the far path's share of the
+        residual at each pixel (:func:`history_gate`; None: 1 everywhere)."""
         h, w = x.shape[-2:]
         parts = [F.interpolate(path(cell_means(x, f)), scale_factor=f, mode="bilinear",
                                align_corners=False)[..., :h, :w]
@@ -181,7 +184,13 @@ class ContextBranch(nn.Module):
         if self.far_kind == "dilated":
             parts.append(F.interpolate(self.far(cell_means(x, FAR_CELL)), scale_factor=FAR_CELL,
                                        mode="bilinear", align_corners=False)[..., :h, :w])
-        y = x + self.out(torch.cat(parts, dim=1))
+        if gate is None:
+            y = x + self.out(torch.cat(parts, dim=1))
+        else:  # the far path's columns of the residual come last (as context_ablation reads)
+            width = parts[-1].shape[1]
+            wt = self.out.weight
+            near = F.conv2d(torch.cat(parts[:-1], dim=1), wt[:, :-width], self.out.bias)
+            y = x + near + gate * F.conv2d(parts[-1], wt[:, -width:])
         if self.global_path:
             g = F.relu(self.g_in(x)).mean(dim=(-2, -1), keepdim=True)
             z = F.relu(self.g_mix(torch.cat([x, g.expand(-1, -1, h, w)], dim=1)))
@@ -201,6 +210,23 @@ class ContextBranch(nn.Module):
                                              frame_share.expand(-1, -1, h, w)], dim=1)))
             y = y + self.s_out(z)
         return y
+
+
+GATE_CELL = 4
+"""The grain of :func:`history_gate`: the near path's cells, so an isolated pixel that fired
+(a noise event) opens the far path over its cell at 1/16 of its weight, not fully."""
+
+
+def history_gate(recent: torch.Tensor) -> torch.Tensor:
+    """The far path's weight per pixel from the event history: ``recent`` is one history
+    channel, ``(B, 1, H, W)``, ``exp(-age / tau)`` (1 for a pixel that fired last, 0 for one
+    that never fired; :mod:`model.data.history`), averaged over :data:`GATE_CELL` cells and
+    brought back bilinearly. A region swept by events within about ``tau`` stacks (the
+    inside of an object whose edges crossed it) keeps the far path's fill; a background
+    that has not fired for many times ``tau`` (a static camera's street) gets none of it."""
+    h, w = recent.shape[-2:]
+    return F.interpolate(cell_means(recent, GATE_CELL), scale_factor=GATE_CELL,
+                         mode="bilinear", align_corners=False)[..., :h, :w].clamp(0, 1)
 
 
 PUSH_PULL_FULL = 1 / 16

@@ -31,7 +31,15 @@ import torch.nn.functional as F
 from torch import nn
 
 from esim_lite.geometry.camera import check_scales
-from model.archs.blocks import ContextBranch, SubPixelLift, conv, deconv, down, res_stack
+from model.archs.blocks import (
+    ContextBranch,
+    SubPixelLift,
+    conv,
+    deconv,
+    down,
+    history_gate,
+    res_stack,
+)
 from model.archs.flow import FlowNet
 
 
@@ -87,6 +95,15 @@ class NetConfig:
             a cell with too few filled from the frame's; its own zero-initialised residual),
             so a never-fired region far from every event gets what the fired pixels say
             instead of a constant prior; a branch without it warm-starts one with it exactly.
+        context_gate: 0 (the default): none. Otherwise one of ``history``'s time constants
+            ``tau``: the far path's share of the branch's residual is weighted per pixel by
+            that history channel, averaged over 4x4 cells
+            (:func:`model.archs.blocks.history_gate`), so a background that has not fired
+            for many times ``tau`` stacks gets no fill carried from the nearest fired edges
+            (the cloud around moving objects under a static camera, docs/models.md) while a
+            region swept within about ``tau`` stacks (a dark object's inside) keeps it. It
+            has no parameters: a model without it warm-starts one with it, all tensors
+            copied, and computes what it did wherever every pixel fired recently.
         history: time constants, in stacks, of the event-history input
             (:mod:`model.data.history`: for every pixel ``exp(-age / tau)``, its age the
             events since it last fired, before the output): one channel each, appended to
@@ -111,6 +128,7 @@ class NetConfig:
     context_far: Literal["cells", "dilated"] = "cells"
     context_global: bool = False
     context_support: bool = False
+    context_gate: float = 0.0
     history: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
@@ -128,6 +146,12 @@ class NetConfig:
             raise ValueError("model.context_global needs a context branch (model.context > 0)")
         if self.context_support and not self.context:
             raise ValueError("model.context_support needs a context branch (model.context > 0)")
+        object.__setattr__(self, "context_gate", float(self.context_gate))
+        if self.context_gate and (not self.context or self.context_gate not in self.history
+                                  or self.fold != 1):
+            raise ValueError(f"model.context_gate ({self.context_gate}) needs a context branch, "
+                             f"fold 1 and the same time constant in model.history "
+                             f"({list(self.history)})")
         if self.context_far not in ("cells", "dilated"):
             raise ValueError(f"model.context_far must be cells or dilated, got "
                              f"{self.context_far!r}")
@@ -197,6 +221,10 @@ class E2SRI(nn.Module):
             raise ValueError(f"central must be (B, {cfg.central_channels}, H, W) matching the "
                              f"stacks, got {tuple(central.shape)}")
         flows = self._flows(stacks, flows)
+        gate = None
+        if cfg.context_gate:  # the history's channels end the central input
+            k = cfg.central_channels - len(cfg.history) + cfg.history.index(cfg.context_gate)
+            gate = history_gate(central[:, k:k + 1])
         f, (hgt, wid) = cfg.fold, stacks.shape[-2:]
         if f > 1:
             stacks, central, flows = (_fold(t, f) for t in (stacks, central, flows))
@@ -213,7 +241,7 @@ class E2SRI(nn.Module):
         if cfg.context:
             fired = ((stacks != 0).sum(dim=(1, 2)) > 0).to(features.dtype).unsqueeze(1) \
                 if cfg.context_support else None
-            features = self.context(features, fired)
+            features = self.context(features, fired, gate)
         out = self.mix(features)
         return out[..., :hgt * cfg.scale, :wid * cfg.scale] if f > 1 else out
 

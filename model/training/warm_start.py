@@ -4,7 +4,8 @@ Only the scale, the lift's ending (``lift``: the parameter-free anti-grid filter
 context branch (``context``: its tensors are left fresh, its residual starting at zero;
 ``context_far`` from ``cells`` to ``dilated``: the 16x16 path is dropped, the dilated one left
 fresh and its columns of the residual zero; ``context_global`` added: its whole-frame path
-fresh, its own residual zero; ``context_support`` added: likewise) and
+fresh, its own residual zero; ``context_support`` added: likewise; ``context_gate``, which has
+no parameters) and
 the event-history input (``history``, added to a model without one: the first convolutions
 of EFR get new input columns, set to zero, so the network computes exactly what it did) may
 differ between the two networks. Every tensor whose name and shape agree
@@ -34,7 +35,7 @@ LIFT = "mix.1"  # the sub-pixel convolution of the LR-state variant
 # what a warm start may change: no tensor, or new ones that start at zero (the context
 # branch's residuals, the history's input columns)
 FREE = ("scale", "lift", "context", "context_far", "context_global", "context_support",
-        "history")
+        "context_gate", "history")
 WIDENED = ("efr0.0.0.weight", "efr.0.0.weight")  # first convolutions that read the central
 # input: the history's channels are inserted after the old central channels
 
@@ -88,7 +89,8 @@ def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
     new = net.config
     if dataclasses.replace(old, scale=new.scale, lift=new.lift, context=new.context,
                            context_far=new.context_far, context_global=new.context_global,
-                           context_support=new.context_support, history=new.history) != new:
+                           context_support=new.context_support, context_gate=new.context_gate,
+                           history=new.history) != new:
         differ = [f.name for f in dataclasses.fields(NetConfig) if f.name not in FREE
                   and getattr(old, f.name) != getattr(new, f.name)]
         raise ValueError(f"{source}: its network differs in {', '.join(differ)}; a warm start "

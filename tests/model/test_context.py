@@ -7,7 +7,15 @@ import pytest
 import torch
 
 from model import checkpoint
-from model.archs.blocks import PUSH_PULL_FULL, ContextBranch, cell_means, push_pull, support_means
+from model.archs.blocks import (
+    GATE_CELL,
+    PUSH_PULL_FULL,
+    ContextBranch,
+    cell_means,
+    history_gate,
+    push_pull,
+    support_means,
+)
 from model.archs.e2sri_arch import E2SRI, NetConfig
 from model.inference.pretrained import shipped_checkpoint
 from model.training.warm_start import warm_start
@@ -319,3 +327,74 @@ def test_a_context_model_warm_starts_a_support_one_exactly(tmp_path):
         warm_start(E2SRI(NetConfig(**SMALL, context=8)), path)
     with pytest.raises(ValueError, match="context_support"):
         NetConfig(**SMALL, context_support=True)  # no branch to hold it
+
+
+def test_the_history_gate_is_the_history_averaged_over_the_near_cells():
+    h = torch.full((1, 1, 37, 45), 0.7)
+    assert torch.allclose(history_gate(h), h)  # a uniform history passes as it is
+    assert torch.equal(history_gate(torch.zeros(1, 1, 37, 45)), torch.zeros(1, 1, 37, 45))
+    one = torch.zeros(1, 1, 40, 40)
+    one[0, 0, 21, 18] = 1.0  # a lone event (noise) opens the far path over its cell, weakly
+    g = history_gate(one)
+    assert 0 < g.max() <= 1 / GATE_CELL ** 2 + 1e-6
+    assert g[..., :8, :].max() == 0 and g[..., 32:, :].max() == 0  # and nowhere far from it
+
+
+def test_the_gate_is_the_far_path_weighted_per_pixel(tmp_path):
+    """Oracles: a history where every pixel just fired gives the ungated network; one where
+    none ever fired gives it with the far path's columns of the residual zeroed; a gate
+    that is 1 on one half and 0 on the other gives each of those on its half."""
+    plain, path = trained_context_model(tmp_path / "plain.pt", 3)
+    torch.nn.init.normal_(plain.context.out.bias, std=0.1)
+    path = checkpoint.save(path, config="", net=checkpoint.net_args(plain),
+                           model=plain.state_dict())
+    gated = E2SRI(NetConfig(**SMALL, context=8, history=(32.0,), context_gate=32.0)).eval()
+    done = warm_start(gated, path)
+    assert not done.fresh  # the gate has no parameters; only the history's columns are new
+    no_far = E2SRI(plain.config).eval()
+    no_far.load_state_dict(plain.state_dict())
+    with torch.no_grad():
+        no_far.context.out.weight[:, 8:] = 0
+        stacks, central, flows = inputs((48, 64), seed=7)
+        ones, zeros = torch.ones(1, 1, 48, 64), torch.zeros(1, 1, 48, 64)
+        want = plain(stacks, central, flows)
+        assert torch.allclose(gated(stacks, torch.cat([central, ones], 1), flows), want,
+                              atol=1e-5)
+        cut = no_far(stacks, central, flows)
+        assert not torch.allclose(cut, want, atol=1e-3)  # the far path does act
+        assert torch.allclose(gated(stacks, torch.cat([central, zeros], 1), flows), cut,
+                              atol=1e-5)
+        half = torch.cat([ones[..., :32], zeros[..., 32:]], dim=-1)
+        got = gated(stacks, torch.cat([central, half], 1), flows)
+        # the gate is 1 up to LR column 29 and 0 from 34 (the 4x4 cells' bilinear blend);
+        # Mix, after the branch, reaches a few LR pixels: compare 6 away from both
+        assert torch.allclose(got[..., : 2 * 24], want[..., : 2 * 24], atol=1e-5)
+        assert torch.allclose(got[..., 2 * 40:], cut[..., 2 * 40:], atol=1e-5)
+        assert not torch.allclose(got[..., 2 * 40:], want[..., 2 * 40:], atol=1e-3)
+
+
+def test_the_gate_needs_its_history_channel_and_a_branch():
+    with pytest.raises(ValueError, match="context_gate"):
+        NetConfig(**SMALL, context=8, history=(4.0,), context_gate=32.0)
+    with pytest.raises(ValueError, match="context_gate"):
+        NetConfig(**SMALL, history=(32.0,), context_gate=32.0)
+    with pytest.raises(ValueError, match="context_gate"):
+        NetConfig(**{**SMALL, "fold": 2}, context=8, history=(32.0,), context_gate=32.0)
+
+
+def test_the_ablation_writes_a_gated_checkpoint_that_computes_as_the_network(tmp_path):
+    from esim_lite.core.dataconf import to_yaml
+    from model.config import TrainConfig
+
+    net, _ = trained_context_model(tmp_path / "k.pt", 4)
+    cfg = to_yaml(TrainConfig(model=net.config))
+    path = checkpoint.save(tmp_path / "k.pt", config=cfg, net=checkpoint.net_args(net),
+                           model=net.state_dict())
+    ckpt = context_ablation().gated(str(path), 16)
+    gated = checkpoint.model_from(ckpt)
+    assert gated.config.context_gate == 16 and gated.config.history == (16.0,)
+    assert checkpoint.config_of(ckpt).model == gated.config  # what the data pipeline reads
+    stacks, central, flows = inputs((32, 40), seed=8)
+    with torch.no_grad():
+        assert torch.allclose(gated(stacks, torch.cat([central, torch.ones(1, 1, 32, 40)], 1),
+                                    flows), net(stacks, central, flows), atol=1e-5)

@@ -39,6 +39,10 @@ def inputs(config: NetConfig, hw: tuple[int, int], seed: int = 0):
     flows = torch.from_numpy(rng.normal(0, 2, (1, n, 2, *hw)).astype(np.float32))
     central = x[:, n // 2] if config.central == "stack" else \
         torch.from_numpy(rng.random((1, 1, *hw), np.float32))
+    if config.history:  # exp(-age / tau): never fired (0) on the left third, recent elsewhere
+        history = rng.random((1, len(config.history), *hw)).astype(np.float32)
+        history[..., : hw[1] // 3] = 0
+        central = torch.cat([central, torch.from_numpy(history)], dim=1)
     return x, central, flows
 
 
@@ -85,6 +89,7 @@ TINY = dict(base_channels=8, hr_channels=4, c_blocks=1, blocks=1)
     dict(state="lr", context=4, context_global=True),  # the frame mean, at every size
     dict(state="lr", context=4, context_support=True),  # means over the fired pixels
     dict(state="lr", fold=2, context=4, context_support=True),
+    dict(state="lr", context=4, history=(8.0,), context_gate=8.0),  # the far path gated
 ])
 def test_any_network_at_odd_sizes_matches_torch(engine, variant, tmp_path):
     torch.manual_seed(0)
