@@ -249,12 +249,17 @@ def test_a_context_model_warm_starts_a_whole_frame_one_exactly(tmp_path):
     x = inputs((40, 48), seed=6)
     with torch.no_grad():
         assert torch.equal(net(*x), src(*x))
-    path = checkpoint.save(tmp_path / "glob.pt", config="", net=checkpoint.net_args(net),
-                           model=net.state_dict())
-    with pytest.raises(ValueError, match="whole-frame path"):
+    refuses_to_lose(net, tmp_path / "glob.pt", "whole-frame path", "context_global")
+
+
+def refuses_to_lose(net: E2SRI, path, what: str, flag: str) -> None:
+    """A warm start that would drop ``net``'s branch path ``flag`` is refused (naming
+    ``what``), and so is the flag without a branch to hold it."""
+    path = checkpoint.save(path, config="", net=checkpoint.net_args(net), model=net.state_dict())
+    with pytest.raises(ValueError, match=what):
         warm_start(E2SRI(NetConfig(**SMALL, context=8)), path)
-    with pytest.raises(ValueError, match="context_global"):
-        NetConfig(**SMALL, context_global=True)  # no branch to hold it
+    with pytest.raises(ValueError, match=flag):
+        NetConfig(**SMALL, **{flag: True})
 
 
 def test_support_means_count_only_the_pixels_that_fired():
@@ -321,12 +326,7 @@ def test_a_context_model_warm_starts_a_support_one_exactly(tmp_path):
         # no event anywhere: the shares and means are 0, not a division by zero
         blank = torch.zeros_like(stacks)
         assert torch.isfinite(net(blank, blank[:, 1], flows)).all()
-    path = checkpoint.save(tmp_path / "sup.pt", config="", net=checkpoint.net_args(net),
-                           model=net.state_dict())
-    with pytest.raises(ValueError, match="support path"):
-        warm_start(E2SRI(NetConfig(**SMALL, context=8)), path)
-    with pytest.raises(ValueError, match="context_support"):
-        NetConfig(**SMALL, context_support=True)  # no branch to hold it
+    refuses_to_lose(net, tmp_path / "sup.pt", "support path", "context_support")
 
 
 def test_the_history_gate_is_the_history_averaged_over_the_near_cells():
