@@ -103,7 +103,9 @@ class NetConfig:
             (the cloud around moving objects under a static camera, docs/models.md) while a
             region swept within about ``tau`` stacks (a dark object's inside) keeps it. It
             has no parameters: a model without it warm-starts one with it, all tensors
-            copied, and computes what it did wherever every pixel fired recently.
+            copied, and computes what it did wherever every pixel fired recently. Applied
+            to the shipped x2 (run P, docs/models.md) it acted as the far path switched off:
+            a flat ground under a moving camera never fires either, so the halos came back.
         history: time constants, in stacks, of the event-history input
             (:mod:`model.data.history`: for every pixel ``exp(-age / tau)``, its age the
             events since it last fired, before the output): one channel each, appended to
