@@ -62,14 +62,14 @@ def gated(source: str, tau: float) -> dict:
     columns zero, so only the gate changes what it computes)."""
     import dataclasses
 
-    from esim_lite.core.dataconf import to_mapping, to_yaml
+    from esim_lite.core.dataconf import from_mapping, to_mapping, to_yaml
     from model import checkpoint
-    from model.archs.e2sri_arch import E2SRI
+    from model.archs.e2sri_arch import E2SRI, NetConfig
     from model.training.warm_start import warm_start
 
     ckpt = checkpoint.load(source)
     cfg = checkpoint.config_of(ckpt, source)
-    old = checkpoint.model_from(ckpt, source=source).config
+    old = from_mapping(NetConfig, ckpt["net"], source=source)  # the config, not a network
     history = old.history if tau in old.history else old.history + (float(tau),)
     if old.history and history != old.history:
         raise ValueError(f"its event history ({list(old.history)}) has no time constant {tau}")
