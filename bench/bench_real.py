@@ -1,7 +1,7 @@
 """The real-data benchmark: E2SRI and the classical baselines on every real recording.
 
 Run: .venv/bin/python bench/bench_real.py [--folder DIR] [--out DIR] [--checkpoint CKPT]
-         [--engine auto|torch|onnxruntime|openvino]
+         [--engine auto|torch|onnxruntime|openvino] [--fill none|harmonic|flat]
 
 ``--folder`` (default ``../shared/real_events`` beside the repository): ``davis346/*.aedat4``
 are scored against their APS frames under EVREAL's protocol and the affine fit, with our
@@ -24,6 +24,8 @@ REAL_EVENTS = Path(__file__).resolve().parents[2] / "shared" / "real_events"
 
 
 def main(argv: list[str] | None = None) -> int:
+    from model.cli import fill_arguments, fill_config
+
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--folder", default=str(REAL_EVENTS),
                    help="real recordings (default: ../shared/real_events beside the repo)")
@@ -39,6 +41,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="as evaluate --stack-rule (default auto: active pixels)")
     p.add_argument("--no-exposure-average", action="store_true",
                    help="score ours at each frame's timestamp only")
+    fill_arguments(p)
     p.add_argument("--every", type=int, default=1, help="every k-th APS frame")
     p.add_argument("--max-frames", type=int, help="per recording")
     args = p.parse_args(argv)
@@ -56,7 +59,8 @@ def main(argv: list[str] | None = None) -> int:
 
     options = EvalOptions(every=args.every, max_frames=args.max_frames,
                           stack_rule=args.stack_rule, events_per_stack=args.events_per_stack,
-                          exposure_average=not args.no_exposure_average)
+                          exposure_average=not args.no_exposure_average,
+                          fill=fill_config(args))
     start = time.perf_counter()
     try:
         result = run_benchmark(resolve(args.checkpoint, args.scale), folder, args.out,

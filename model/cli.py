@@ -7,6 +7,7 @@ import contextlib
 import logging
 import os
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 from esim_lite.core.dataconf import ConfigError, load_config
@@ -100,6 +101,24 @@ def _engine_argument(p: argparse.ArgumentParser) -> None:
                    "outputs within a few grey levels of float32; never picked by auto)")
 
 
+def fill_arguments(p: argparse.ArgumentParser) -> None:
+    """``--fill`` and ``--fill-radius``: what the output gets where no event fired."""
+    p.add_argument("--fill", choices=["none", "harmonic", "flat"], default="none",
+                   help="what our output gets where no event fired (model/inference/fill.py): "
+                   "none (default: the network's own fill), harmonic (the smoothest "
+                   "continuation of the output where events fired), flat (each event-free "
+                   "region one level, its rim's mean); see docs/evaluation.md")
+    p.add_argument("--fill-radius", type=int, default=2,
+                   help="LR pixels around every fired pixel where --fill keeps the network's "
+                   "output (default 2)")
+
+
+def fill_config(args: argparse.Namespace):
+    """The :class:`model.inference.fill.FillConfig` of :func:`fill_arguments`' flags."""
+    from model.inference.fill import FillConfig
+    return FillConfig(mode=args.fill, radius=args.fill_radius)
+
+
 def _stack_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--events-per-stack", type=int,
                    help="events per stack (default: chosen by --stack-rule)")
@@ -134,6 +153,7 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
     p.add_argument("--mp4", action="store_true", help="also write video.mp4")
     p.add_argument("--temporal", type=float, metavar="WEIGHT",
                    help="blind temporal-consistency post-process (e.g. 0.6)")
+    fill_arguments(p)
     p.add_argument("--device", help="cpu or cuda (default: cuda if present)")
     _engine_argument(p)
     p.add_argument("--no-progress", action="store_true")
@@ -156,6 +176,7 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
         model = Reconstructor.from_state(state, str(ckpt), rec.sensor_hw, args.mode,
                                          args.first_pass, args.events_per_stack, args.device,
                                          args.engine, activity)
+        model = replace(model, fill=fill_config(args))
         plan = plan_outputs(rec, model.stacks, args.at, args.rate, args.every)
         result = reconstruct(rec, model, args.out, plan, args.mp4, not args.no_progress,
                              args.limit, temporal=args.temporal)
@@ -202,6 +223,7 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     p.add_argument("--exposure-average", action="store_true",
                    help="average our outputs inside each APS frame's exposure window "
                    "(AEDAT4 stores it) before scoring")
+    fill_arguments(p)
     _engine_argument(p)
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
@@ -215,7 +237,8 @@ def evaluate_main(argv: list[str] | None = None) -> int:
                               baselines=() if args.no_baselines else BASELINES,
                               temporal=not args.no_temporal, stack_rule=args.stack_rule,
                               events_per_stack=args.events_per_stack,
-                              exposure_average=args.exposure_average)
+                              exposure_average=args.exposure_average,
+                              fill=fill_config(args))
         rows = evaluate(resolve(args.checkpoint, args.scale), args.out, args.data,
                         args.recording, options, args.first_pass, args.split,
                         _sensor(args.sensor_size), args.engine)

@@ -37,7 +37,7 @@ from __future__ import annotations
 import csv
 import io
 import logging
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -56,6 +56,7 @@ from model.archs.e2sri_arch import mode_of
 from model.data.dataset import index_samples
 from model.inference.baselines import EventFilter, FilterConfig, upsample
 from model.inference.exposure import boundary_times, exposure_average
+from model.inference.fill import FillConfig
 from model.inference.observed import (
     MIN_PIXELS,
     affine_in,
@@ -80,7 +81,8 @@ class EvalOptions:
     ``max_frames`` per sequence; ``tc_weight``: weight of the warped previous output in the
     temporal post-process; ``stack_rule`` and ``events_per_stack`` choose the stacks
     (:mod:`model.inference.stack_size`); ``exposure_average``: average our outputs over
-    each APS frame's exposure window where the file stores it."""
+    each APS frame's exposure window where the file stores it; ``fill``: what our outputs
+    get where no event fired (:mod:`model.inference.fill`)."""
 
     normalize: Literal["affine", "minmax", "evreal", "none", "observed"] = "affine"
     every: int = 1
@@ -93,6 +95,7 @@ class EvalOptions:
     events_per_stack: int | None = None
     exposure_average: bool = False
     references: bool = False
+    fill: FillConfig = field(default_factory=FillConfig)
 
 
 #: Methods whose output has an absolute intensity (compared as they are under ``evreal``).
@@ -165,8 +168,9 @@ class ModelPool:
                 self.state, self.ckpt, hw, mode_of(self.config.model), self.first_pass,
                 engine=self.engine)
         given = self.options.events_per_stack
-        model = self._by_hw[hw].with_stacks(given, activity_for_rule(
-            rec, self.options.stack_rule, self.config.data.stack_rule, given))
+        model = replace(self._by_hw[hw].with_stacks(given, activity_for_rule(
+            rec, self.options.stack_rule, self.config.data.stack_rule, given)),
+            fill=self.options.fill)
         log.info("%s: %s events per stack", rec.path, model.stack_choice.describe())
         return model
 

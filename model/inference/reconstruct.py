@@ -36,6 +36,7 @@ from model.archs.e2sri_arch import CENTRAL_OF_MODE, E2SRI, central_input
 from model.data.classical_flow import stack_flows
 from model.data.history import EventAge, history_input
 from model.inference.engines import Forward, load_engine
+from model.inference.fill import FillConfig, fill_unobserved
 from model.inference.stack_size import Activity, StackChoice, choose_stack
 from model.inference.temporal import consistency_step
 
@@ -143,7 +144,9 @@ class Reconstructor:
 
     ``engine`` runs the network's forward pass (:mod:`model.inference.engines`; None: the
     network in eager PyTorch); ``first_pass`` is the first pass's, on the same engine;
-    ``stack_choice``: how ``stacks.events_per_channel`` was chosen (None: set by hand)."""
+    ``stack_choice``: how ``stacks.events_per_channel`` was chosen (None: set by hand);
+    ``fill``: how :meth:`run` fills what no event saw after the network
+    (:mod:`model.inference.fill`; the default leaves the network's output)."""
 
     net: E2SRI
     first_pass: Forward | None
@@ -151,6 +154,7 @@ class Reconstructor:
     device: torch.device
     engine: Forward | None = None
     stack_choice: StackChoice | None = None
+    fill: FillConfig = FillConfig()
 
     @classmethod
     def load(cls, ckpt: str | Path, sensor_hw: tuple[int, int], mode: Mode = "main",
@@ -275,6 +279,10 @@ class Reconstructor:
         if self.device.type == "cuda":
             torch.cuda.synchronize()
         timing["network"] = time.perf_counter() - start
+        if self.fill.mode != "none":
+            start = time.perf_counter()
+            out = fill_unobserved(out, stacks, self.fill)
+            timing["fill"] = time.perf_counter() - start
         return out, timing
 
     def _central(self, x, f, aps, history=None):
