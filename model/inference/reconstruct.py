@@ -363,7 +363,7 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
         aps = recording.frames.intensity[k] if k is not None else None
         image, timing = model.run(given.stacks, aps, given.history)
         for key, v in timing.items():
-            seconds[key] += v
+            seconds[key] = seconds.get(key, 0.0) + v
         if temporal is not None:
             raw = image
             if previous is not None:
