@@ -1,6 +1,6 @@
 """Side by side: the "ours" columns of several real-benchmark figures (bench/bench_real.py).
 
-Run: .venv/bin/python bench/side_by_side.py --out FIG.png LABEL=DIR [LABEL=DIR ...]
+Run: .venv/bin/python bench/side_by_side.py --out FIG.png [--scale 0.5] LABEL=DIR [LABEL=DIR ...]
 
 Each ``DIR`` holds a ``real_benchmark.png``; the figure has one column pair per ``LABEL``
 (our output and its 4x zoom, for every recording), then the first figure's APS columns
@@ -36,6 +36,7 @@ def headed(block: np.ndarray, label: str) -> np.ndarray:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--out", required=True, help="the PNG to write")
+    p.add_argument("--scale", type=float, default=1.0, help="resize the result (default 1)")
     p.add_argument("runs", nargs="+", help="LABEL=DIR, DIR holding real_benchmark.png")
     args = p.parse_args(argv)
     blocks, first = [], None
@@ -57,7 +58,10 @@ def main(argv: list[str] | None = None) -> int:
     out = Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = out.with_suffix(".tmp.png")
-    cv2.imwrite(str(tmp), np.hstack(blocks))
+    sheet = np.hstack(blocks)
+    if args.scale != 1.0:
+        sheet = cv2.resize(sheet, None, fx=args.scale, fy=args.scale, interpolation=cv2.INTER_AREA)
+    cv2.imwrite(str(tmp), sheet)
     tmp.replace(out)
     print(f"wrote {out}")
     return 0

@@ -65,7 +65,7 @@ from model.inference.observed import (
     upscale_mask,
 )
 from model.inference.reconstruct import OutputPlan, Reconstructor, output_times
-from model.inference.references import REFERENCES, reference_image
+from model.inference.references import CEILINGS, REFERENCES, reference_image
 from model.inference.stack_size import Rule, StackChoice, activity_for_rule
 from model.inference.temporal import reference_motion, temporally_consistent, warp_error
 from model.losses.lpips import LPIPS
@@ -325,7 +325,8 @@ def _reference_rows(seq: SequenceOutputs, proto: str, targets: list[np.ndarray],
                     scale: int, options: EvalOptions, lpips_net) -> list[dict]:
     """Rows of the information-free references (:mod:`model.inference.references`),
     compared as they are: under ``observed`` made at the region's mean level and scored
-    inside it, otherwise at the frame's mean level and scored over the frame."""
+    inside it, otherwise at the frame's mean level and scored over the frame; then, over
+    whole frames only, the ceilings (the target where events fired, one grey elsewhere)."""
     rows = []
     for kind in REFERENCES:
         per_frame = []
@@ -339,6 +340,17 @@ def _reference_rows(seq: SequenceOutputs, proto: str, targets: list[np.ndarray],
                                                 lpips_net))
         rows.append({"sequence": seq.name, "protocol": proto, "method": kind,
                      "frames": len(per_frame), **_mean_metrics(per_frame)})
+    if options.normalize == "observed" or len(seq.support) != len(targets):
+        return rows
+    for kind in CEILINGS:
+        per_frame = []
+        for g, region in zip(targets, seq.support):
+            mask = upscale_mask(region, scale)
+            if 0 < int(mask.sum()) < mask.size:
+                per_frame.append(frame_metrics(reference_image(kind, g, 0, mask), g, lpips_net))
+        if per_frame:
+            rows.append({"sequence": seq.name, "protocol": proto, "method": kind,
+                         "frames": len(per_frame), **_mean_metrics(per_frame)})
     return rows
 
 

@@ -34,6 +34,8 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.linalg import cg
 
+from model.inference.observed import region_of
+
 Mode = Literal["none", "harmonic", "flat"]
 MODES: tuple[str, ...] = ("none", "harmonic", "flat")
 
@@ -66,23 +68,10 @@ class FillConfig:
                              f"{self.transition}")
 
 
-def event_support(stacks: np.ndarray, min_neighbours: int = 1) -> np.ndarray:
+def fired_pixels(stacks: np.ndarray) -> np.ndarray:
     """bool[H, W]: pixels that fired in any of the uint8 stacks ``[n, c, H, W]`` (128: no
-    event) with at least ``min_neighbours`` fired pixels among their 8 neighbours."""
-    fired = (np.asarray(stacks) != 128).any(axis=(0, 1))
-    if min_neighbours <= 0:
-        return fired
-    f = fired.astype(np.float32)
-    around = cv2.boxFilter(f, -1, (3, 3), normalize=False, borderType=cv2.BORDER_CONSTANT) - f
-    return fired & (around >= min_neighbours - 0.5)
-
-
-def observed_region(support: np.ndarray, radius: int) -> np.ndarray:
-    """``support`` dilated by a disc of ``radius`` pixels."""
-    if radius == 0:
-        return support.copy()
-    disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
-    return cv2.dilate(support.astype(np.uint8), disc) > 0
+    event)."""
+    return (np.asarray(stacks) != 128).any(axis=(0, 1))
 
 
 def harmonic_fill(values: np.ndarray, known: np.ndarray, rtol: float = RTOL) -> np.ndarray:
@@ -182,15 +171,15 @@ def fill_unobserved(image: np.ndarray, stacks: np.ndarray, config: FillConfig) -
     when no pixel counts as observed."""
     if config.mode == "none":
         return image
-    support = event_support(stacks, config.min_neighbours)
-    if not support.any():
+    fired = fired_pixels(stacks)
+    if not region_of(fired, 0, config.min_neighbours).any():
         return image
     h, w = stacks.shape[-2:]
     sy, sx = image.shape[0] // h, image.shape[1] // w
     if sy * h != image.shape[0] or sx * w != image.shape[1] or sy != sx:
         raise ValueError(f"output {image.shape} is not a whole multiple of the stacks' "
                          f"{(h, w)}")
-    lr_known = observed_region(support, config.radius)
+    lr_known = region_of(fired, config.radius, config.min_neighbours)
     lr_image = cv2.resize(image.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
     if config.mode == "harmonic":
         lr_filled = harmonic_fill(lr_image, lr_known)

@@ -47,10 +47,16 @@ def support_mask(events: Events, radius: int = RADIUS,
     h, w = events.sensor_hw
     fired = np.zeros(h * w, bool)
     fired[events.y.astype(np.int64) * w + events.x.astype(np.int64)] = True
-    fired = fired.reshape(h, w).astype(np.float32)
-    neighbours = cv2.boxFilter(fired, -1, (3, 3), normalize=False,
-                               borderType=cv2.BORDER_CONSTANT) - fired
-    supported = ((fired > 0) & (neighbours >= min_neighbours - 0.5)).astype(np.uint8)
+    return region_of(fired.reshape(h, w), radius, min_neighbours)
+
+
+def region_of(fired: np.ndarray, radius: int, min_neighbours: int) -> np.ndarray:
+    """bool[H, W]: the pixels of ``fired`` (bool[H, W]) with at least ``min_neighbours``
+    fired among their 8 neighbours (0: all of them), dilated by a disc of ``radius``."""
+    f = np.asarray(fired, bool).astype(np.float32)
+    neighbours = cv2.boxFilter(f, -1, (3, 3), normalize=False,
+                               borderType=cv2.BORDER_CONSTANT) - f
+    supported = ((f > 0) & (neighbours >= min_neighbours - 0.5)).astype(np.uint8)
     if radius > 0:
         disc = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
         supported = cv2.dilate(supported, disc)

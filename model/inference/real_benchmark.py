@@ -175,7 +175,10 @@ def benchmark_markdown(rows: list[dict], reports: list[RecordingReport],
               f"fired is left out). `flat` and `salt` carry no information about the "
               f"recording, compared as they are: a grey at the target's mean level (over the "
               f"region under `observed`) and that grey with random dots (+-{SALT_AMPLITUDE}) "
-              f"on {100 * SALT_FRACTION:.1f}% of its pixels: the floors.", "",
+              f"on {100 * SALT_FRACTION:.1f}% of its pixels: the floors. `seen+flat` (whole "
+              f"frames only): the APS frame itself inside the observed region, one grey "
+              f"(its true mean there) outside: what an output that draws nothing where no "
+              f"event fired scores at best.", "",
               "Recordings:", ""]
     for r in reports:
         line = f"- {r.name} ({'scored' if r.scored else 'figure only'}): events per stack " \

@@ -11,14 +11,8 @@ import scipy.sparse.linalg
 
 from datagen.recording import open_recording
 from model.cli import reconstruct_main
-from model.inference.fill import (
-    FillConfig,
-    event_support,
-    fill_unobserved,
-    flat_fill,
-    harmonic_fill,
-    observed_region,
-)
+from model.inference.fill import FillConfig, fill_unobserved, fired_pixels, flat_fill, harmonic_fill
+from model.inference.observed import region_of
 from model.inference.reconstruct import Reconstructor
 
 
@@ -85,11 +79,11 @@ def test_a_lone_event_is_not_support_but_two_adjacent_are():
     stacks[0, 1, 5, 5] = 200  # alone
     stacks[1, 0, 12, 12] = 60
     stacks[2, 2, 12, 13] = 200  # beside it, in another stack
-    support = event_support(stacks, 1)
+    support = region_of(fired_pixels(stacks), 0, 1)
     assert not support[5, 5] and support[12, 12] and support[12, 13]
     assert support.sum() == 2
-    assert event_support(stacks, 0).sum() == 3
-    region = observed_region(support, 2)
+    assert region_of(fired_pixels(stacks), 0, 0).sum() == 3
+    region = region_of(fired_pixels(stacks), 2, 1)
     assert region[12, 10] and region[14, 13] and not region[12, 16] and not region[15, 15]
 
 

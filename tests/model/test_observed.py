@@ -139,6 +139,22 @@ def test_references_carry_no_information():
         reference_image("stripes", gt, 0)
 
 
+def test_the_ceiling_is_the_target_where_seen_and_its_mean_elsewhere():
+    gt = np.random.default_rng(1).random((20, 30)).astype(np.float32)
+    region = np.zeros(gt.shape, bool)
+    region[5:12, 8:20] = True
+    ceiling = reference_image("seen+flat", gt, 0, region)
+    np.testing.assert_array_equal(ceiling[region], gt[region])
+    np.testing.assert_allclose(ceiling[~region], gt[~region].mean(), rtol=1e-6)
+    # the best grey outside: any other level is further from the target there
+    for level in (gt[~region].mean() - 0.05, gt[~region].mean() + 0.05, gt.mean() + 0.01):
+        assert np.mean((ceiling - gt) ** 2) < np.mean((np.where(region, gt, level) - gt) ** 2)
+    with pytest.raises(ValueError, match="needs an observed region"):
+        reference_image("seen+flat", gt, 0)
+    with pytest.raises(ValueError, match="needs an observed region"):
+        reference_image("seen+flat", gt, 0, np.ones(gt.shape, bool))
+
+
 @pytest.mark.skipif(not (REAL / "street.aedat4").exists(),
                     reason="../shared/real_events is not there")
 def test_the_street_clips_observed_region_leaves_the_static_background_out():

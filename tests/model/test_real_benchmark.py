@@ -53,7 +53,9 @@ def test_the_benchmark_writes_one_table_and_one_figure(real_folder, tiny_checkpo
             assert f"| davis346/tiny | {norm} | {method} | 2 |" in table
     rows = list(csv.DictReader((out / "real_benchmark.csv").open()))
     assert {r["normalize"] for r in rows} == {"evreal", "affine", "observed"}
-    assert len(rows) == 3 * len(methods)
+    ceilings = [r for r in rows if r["method"] == "seen+flat"]
+    assert {r["normalize"] for r in ceilings} == {"evreal", "affine"}  # whole frames only
+    assert len(rows) == 3 * len(methods) + 2
     assert all(np.isfinite(float(r["psnr"])) for r in rows)
     observed = [r for r in rows if r["normalize"] == "observed"]
     assert all(0 < float(r["coverage"]) <= 1 and r["ewarp"] == "" for r in observed)
@@ -63,6 +65,10 @@ def test_the_benchmark_writes_one_table_and_one_figure(real_folder, tiny_checkpo
     for key in ("psnr", "ssim"):
         assert float(by["affine", "flat"][key]) == pytest.approx(
             float(by["evreal", "flat"][key]), abs=1e-4)
+    # the ceiling is the target where events fired and the best grey elsewhere: never
+    # further from the target than the flat floor
+    for norm in ("evreal", "affine"):
+        assert float(by[norm, "seen+flat"]["mse"]) < float(by[norm, "flat"]["mse"])
     figure = cv2.imread(str(out / "real_benchmark.png"))
     assert figure is not None and figure.shape[0] > 200  # two rows: the AEDAT4, the snippet
 
