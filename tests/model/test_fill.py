@@ -125,3 +125,13 @@ def test_reconstructor_applies_the_fill_and_the_cli_takes_it(tiny_shards, tiny_c
                              "--no-progress"]) == 0
     assert "fill" in capsys.readouterr().out
     assert cv2.imread(str(sorted((tmp_path / "h").glob("frame_*.png"))[0]), 0) is not None
+
+
+def test_fill_at_x4_keeps_whole_blocks_and_flattens_the_rest():
+    rng = np.random.default_rng(5)
+    image = rng.random((4 * 24, 4 * 40)).astype(np.float32)
+    stacks = np.full((3, 3, 24, 40), 128, np.uint8)
+    stacks[0, 2, 5:9, 5:9] = 30
+    got = fill_unobserved(image, stacks, FillConfig("flat", radius=0))
+    np.testing.assert_array_equal(got[20:36, 20:36], image[20:36, 20:36])  # the 4x4 LR block
+    assert got[:, 100:].std() < 1e-3  # one region, one level, far from its rim
