@@ -168,3 +168,26 @@ def test_material_maps_are_excluded_and_sources_are_drawn_by_weight(tmp_path):
     with pytest.raises(ValueError, match="source_weights must be 2"):
         TextureConfig(source=(str(a), str(b)), source_weights=(1.0,))
 
+
+
+def test_held_out_photographs_stay_out_of_every_training_recipe():
+    from pathlib import Path
+
+    import yaml
+
+    from datagen.config import DatagenConfig
+    from esim_lite.core.dataconf import load_config
+
+    configs = Path(__file__).resolve().parents[2] / "configs"
+    held = load_config(DatagenConfig, [configs / "datagen_test.yaml",
+                                       configs / "textures_heldout.yaml"]).textures
+    assert all(str(s).startswith("data/heldout/") for s in held.source)
+    assert held.procedural_fraction == 0 and held.split == "all"
+    # no other config's values (comments aside) name the held-out folder or a reserved package
+    for path in configs.rglob("*.yaml"):
+        if path.name == "textures_heldout.yaml":
+            continue
+        values = str(yaml.safe_load(path.read_text()))
+        for reserved in ("heldout", "opencv", "mate-backgrounds", "plasma-workspace",
+                         "/usr/share/backgrounds", "/usr/share/wallpapers"):
+            assert reserved not in values, f"{path.name} names {reserved}"
