@@ -12,18 +12,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PACKAGES="opencv-doc mate-backgrounds plasma-workspace-wallpapers"
-
-missing=""
-for p in $PACKAGES; do dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"; done
-if [ -n "$missing" ]; then
-  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-    apt-get install -y -q $missing >/dev/null 2>&1 \
-      || { apt-get update -q >/dev/null 2>&1 && apt-get install -y -q $missing >/dev/null; }
-  else
-    echo "install_heldout_textures: need root and apt-get to install:$missing" >&2
-    exit 1
-  fi
-fi
+# shellcheck source=scripts/apt_packages.sh
+source scripts/apt_packages.sh
+ensure_packages install_heldout_textures $PACKAGES
 
 rm -rf data/heldout.tmp && mkdir -p data/heldout.tmp/opencv data/heldout.tmp/mate \
   data/heldout.tmp/plasma

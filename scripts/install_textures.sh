@@ -15,18 +15,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PACKAGES="ufoai-textures gnome-backgrounds ukui-wallpapers supertuxkart-data flightgear-data-base"
-
-missing=""
-for p in $PACKAGES; do dpkg -s "$p" >/dev/null 2>&1 || missing="$missing $p"; done
-if [ -n "$missing" ]; then
-  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-    apt-get install -y -q $missing >/dev/null 2>&1 \
-      || { apt-get update -q >/dev/null 2>&1 && apt-get install -y -q $missing >/dev/null; }
-  else
-    echo "install_textures: need root and apt-get to install:$missing" >&2
-    exit 1
-  fi
-fi
+# shellcheck source=scripts/apt_packages.sh
+source scripts/apt_packages.sh
+ensure_packages install_textures $PACKAGES
 
 rm -rf data/textures.tmp && mkdir -p data/textures.tmp/ufoai data/textures.tmp/wallpapers \
   data/textures.tmp/games
