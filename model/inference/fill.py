@@ -34,7 +34,7 @@ import numpy as np
 from scipy.sparse import csr_matrix
 from scipy.sparse.linalg import cg
 
-from model.inference.observed import region_of
+from model.inference.observed import region_of, upscale_mask
 
 Mode = Literal["none", "harmonic", "flat"]
 MODES: tuple[str, ...] = ("none", "harmonic", "flat")
@@ -171,15 +171,15 @@ def fill_unobserved(image: np.ndarray, stacks: np.ndarray, config: FillConfig) -
     when no pixel counts as observed."""
     if config.mode == "none":
         return image
-    fired = fired_pixels(stacks)
-    if not region_of(fired, 0, config.min_neighbours).any():
+    support = region_of(fired_pixels(stacks), 0, config.min_neighbours)
+    if not support.any():
         return image
     h, w = stacks.shape[-2:]
     sy, sx = image.shape[0] // h, image.shape[1] // w
     if sy * h != image.shape[0] or sx * w != image.shape[1] or sy != sx:
         raise ValueError(f"output {image.shape} is not a whole multiple of the stacks' "
                          f"{(h, w)}")
-    lr_known = region_of(fired, config.radius, config.min_neighbours)
+    lr_known = region_of(support, config.radius, 0)  # the support, dilated
     lr_image = cv2.resize(image.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
     if config.mode == "harmonic":
         lr_filled = harmonic_fill(lr_image, lr_known)
@@ -187,5 +187,5 @@ def fill_unobserved(image: np.ndarray, stacks: np.ndarray, config: FillConfig) -
         lr_filled = flat_fill(lr_image, lr_known, config.transition)
     filled = cv2.resize(lr_filled, (image.shape[1], image.shape[0]),
                         interpolation=cv2.INTER_LINEAR)
-    known = np.repeat(np.repeat(lr_known, sy, axis=0), sx, axis=1)
+    known = upscale_mask(lr_known, sy)
     return np.clip(np.where(known, image, filled), 0.0, 1.0).astype(np.float32)
