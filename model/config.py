@@ -124,3 +124,8 @@ class TrainConfig:
             raise ValueError(f"model.stack_channels ({self.model.stack_channels}) must equal "
                              f"data.stacks.channels ({self.data.stacks.channels}): the "
                              f"network takes the stacks' channels as its input")
+        if self.model.memory != (self.data.clip > 1):
+            raise ValueError(f"model.memory ({self.model.memory}) and data.clip "
+                             f"({self.data.clip}) go together: a network that carries its "
+                             f"state across outputs trains on clips of 2 or more consecutive "
+                             f"outputs, and only such a network needs them")

@@ -112,6 +112,14 @@ class NetConfig:
             the central input, so EFR sees them beside every stack. Empty (the shipped
             models): none. A model without it warm-starts one with it exactly (the new input
             columns start at zero). Needs SBN stacks.
+        memory: carry the recurrent state from one output to the next (the memory across
+            outputs of recurrent events-to-video networks): the previous output's final LR
+            state enters this output's initial state through a zero-initialised 3x3
+            convolution, so a region its edges swept outputs ago keeps what they said after
+            they left. ``forward(..., memory=, return_state=True)`` takes and returns it;
+            without a memory (the first output) the network computes what it would without
+            the option, so a model without it warm-starts one with it exactly. Trained on
+            clips of consecutive outputs (``data.clip``); CPU variant (``state: lr``) only.
     """
 
     scale: int = 2
@@ -132,6 +140,7 @@ class NetConfig:
     context_support: bool = False
     context_gate: float = 0.0
     history: tuple[float, ...] = ()
+    memory: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "history", tuple(float(t) for t in self.history))
@@ -157,6 +166,8 @@ class NetConfig:
         if self.context_far not in ("cells", "dilated"):
             raise ValueError(f"model.context_far must be cells or dilated, got "
                              f"{self.context_far!r}")
+        if self.memory and self.state != "lr":
+            raise ValueError("model.memory needs the CPU variant's LR state (state: lr)")
         if self.n_stacks < 3 or self.n_stacks % 2 == 0:
             raise ValueError(f"n_stacks must be odd and >= 3, got {self.n_stacks}")
         if min(self.base_channels, self.hr_channels, self.c_blocks, self.blocks) < 1:
@@ -176,7 +187,10 @@ class E2SRI(nn.Module):
         central: ``(B, c_central, H, W)``: the central stack, or an LR intensity in [0, 1].
         flows: ``(B, n, 2, H, W)`` pixel flow from the central input to each stack (the
             central entry is ignored); required when ``config.flow == "given"``.
-    Returns ``(B, 1, scale H, scale W)`` intensity (linear, about [0, 1]).
+        memory: with ``config.memory``, the state the previous output returned (None for
+            the first output of a sequence).
+    Returns ``(B, 1, scale H, scale W)`` intensity (linear, about [0, 1]); with
+    ``return_state``, ``(image, state)``, the state to pass as the next output's memory.
     """
 
     def __init__(self, config: NetConfig) -> None:
@@ -211,10 +225,16 @@ class E2SRI(nn.Module):
                                              global_path=cfg.context_global,
                                              support=cfg.context_support)
         self.flow_net = FlowNet(cfg.stack_channels) if cfg.flow == "learned" else None
+        if cfg.memory:
+            self.memory_in = nn.Conv2d(b, b, 3, 1, 1, bias=False)
+            nn.init.zeros_(self.memory_in.weight)
 
     def forward(self, stacks: torch.Tensor, central: torch.Tensor,
-                flows: torch.Tensor | None = None) -> torch.Tensor:
+                flows: torch.Tensor | None = None, memory: torch.Tensor | None = None,
+                return_state: bool = False):
         cfg = self.config
+        if (memory is not None or return_state) and not cfg.memory:
+            raise ValueError("this network carries no memory across outputs (model.memory)")
         n, mid = cfg.n_stacks, cfg.n_stacks // 2
         if stacks.ndim != 5 or stacks.shape[1:3] != (n, cfg.stack_channels):
             raise ValueError(f"stacks must be (B, {n}, {cfg.stack_channels}, H, W), got "
@@ -231,6 +251,11 @@ class E2SRI(nn.Module):
         if f > 1:
             stacks, central, flows = (_fold(t, f) for t in (stacks, central, flows))
         state = self.efr0(central)
+        if memory is not None:
+            if memory.shape != state.shape:
+                raise ValueError(f"memory must be {tuple(state.shape)} (the previous "
+                                 f"output's state), got {tuple(memory.shape)}")
+            state = state + self.memory_in(memory.to(state.dtype))
         outputs = []
         for j in [k for k in range(n) if k != mid]:
             rectified = self.efr(torch.cat([stacks[:, j], central, flows[:, j]], dim=1))
@@ -245,7 +270,9 @@ class E2SRI(nn.Module):
                 if cfg.context_support else None
             features = self.context(features, fired, gate)
         out = self.mix(features)
-        return out[..., :hgt * cfg.scale, :wid * cfg.scale] if f > 1 else out
+        if f > 1:
+            out = out[..., :hgt * cfg.scale, :wid * cfg.scale]
+        return (out, state) if return_state else out
 
     def _flows(self, stacks: torch.Tensor, flows: torch.Tensor | None) -> torch.Tensor:
         cfg = self.config

@@ -33,6 +33,10 @@ class DataConfig:
             active sensor, times the share of pixels firing >= 2 events in the first
             second), so a static camera watching small objects trains on the short, sparse
             stacks a real one is given, not on stacks that span seconds of sensor noise.
+        clip: consecutive outputs per training sample (1: single outputs). A network with
+            memory across outputs (``model.memory``) trains on clips of ``clip`` consecutive
+            frames of one sequence, cropped and flipped alike, its state carried from each
+            to the next; each frame belongs to at most one clip.
     """
 
     stacks: StackConfig = field(default_factory=StackConfig)
@@ -42,6 +46,7 @@ class DataConfig:
     flips: bool = True
     cache: bool = False
     stack_rule: Literal["fixed", "active"] = "fixed"
+    clip: int = 1
 
     def __post_init__(self) -> None:
         if self.stack_rule not in ("fixed", "active"):
@@ -50,5 +55,7 @@ class DataConfig:
             raise ValueError("data.stack_rule: active needs SBN stacks without overlap")
         if self.crop is not None and self.crop < 16:
             raise ValueError("crop must be >= 16 (or null for whole frames)")
+        if self.clip < 1:
+            raise ValueError(f"data.clip must be >= 1, got {self.clip}")
         if not 0 <= self.val_fraction < 1:
             raise ValueError("val_fraction must be in [0, 1)")

@@ -224,7 +224,11 @@ class ShardSamples(Dataset):
         return stacks, given, lr, hr
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
-        ref, cfg, s = self.refs[i], self.data, self.scale
+        return self._sample(self.refs[i], i)
+
+    def _sample(self, ref: SampleRef, i: int) -> dict[str, torch.Tensor]:
+        """``ref``'s tensors, cropped and flipped as sample ``i`` of this epoch is."""
+        cfg, s = self.data, self.scale
         stacks, given, lr, hr = self._inputs(ref)
         age = self._age(ref)
         if self.train:
@@ -265,3 +269,44 @@ class ShardSamples(Dataset):
             per_stack = ref.stacks(cfg.stacks).events_per_stack
             item["history"] = torch.from_numpy(history_input(age, per_stack, self.history))
         return item
+
+
+def clips_of(refs: list[SampleRef], length: int) -> list[tuple[SampleRef, ...]]:
+    """``refs`` cut into clips of ``length`` consecutive frames of one sequence, in order;
+    each frame in at most one clip (a run of consecutive frames is cut from its start, its
+    remainder dropped)."""
+    clips, run = [], []
+    for ref in refs:
+        if run and (ref.path, ref.sequence, ref.frame) != \
+                (run[-1].path, run[-1].sequence, run[-1].frame + 1):
+            run = []
+        run.append(ref)
+        if len(run) == length:
+            clips.append(tuple(run))
+            run = []
+    return clips
+
+
+class ClipSamples(ShardSamples):
+    """``dataset[i]``: clip ``i``'s frames as :class:`ShardSamples` gives them, stacked on a
+    new first axis (``stacks`` (L, n, c, h, w), ``hr`` (L, 1, sh, sw), ...), every frame
+    cropped and flipped alike (the draws of sample ``i``), so the scene stays in place from
+    one output to the next as it does in a recording; ``index`` is ``i``."""
+
+    def __init__(self, clips: list[tuple[SampleRef, ...]], data: DataConfig, n_stacks: int,
+                 scale: int, train: bool, seed: int = 0, cache: InputCache | None = None,
+                 history: tuple[float, ...] = ()) -> None:
+        if len({len(c) for c in clips}) > 1:
+            raise ValueError("clips must all have the same length")
+        super().__init__([r for c in clips for r in c], data, n_stacks, scale, train, seed,
+                         cache, history)
+        self.clips = clips
+
+    def __len__(self) -> int:
+        return len(self.clips)
+
+    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
+        items = [self._sample(ref, i) for ref in self.clips[i]]
+        out = {k: torch.stack([it[k] for it in items]) for k in items[0] if k != "index"}
+        out["index"] = torch.tensor(i)
+        return out

@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
@@ -138,6 +138,14 @@ class StackedEvents:
     history: np.ndarray | None = None
 
 
+@dataclass(eq=False)
+class Memory:
+    """What a network with memory across outputs (``model.memory``) carries from one
+    output to the next: the last output's state, None before the first."""
+
+    state: torch.Tensor | None = None
+
+
 @dataclass(frozen=True, eq=False)
 class Reconstructor:
     """A loaded network (plus its first pass for Duo-Pass) and how to stack events for it.
@@ -146,7 +154,9 @@ class Reconstructor:
     network in eager PyTorch); ``first_pass`` is the first pass's, on the same engine;
     ``stack_choice``: how ``stacks.events_per_channel`` was chosen (None: set by hand);
     ``fill``: how :meth:`run` fills what no event saw after the network
-    (:mod:`model.inference.fill`; the default leaves the network's output)."""
+    (:mod:`model.inference.fill`; the default leaves the network's output); ``memory``: the
+    state a network with memory across outputs carries from one :meth:`run` to the next (a
+    fresh one per recording: :meth:`reset`)."""
 
     net: E2SRI
     first_pass: Forward | None
@@ -155,6 +165,7 @@ class Reconstructor:
     engine: Forward | None = None
     stack_choice: StackChoice | None = None
     fill: FillConfig = FillConfig()
+    memory: Memory = field(default_factory=Memory)
 
     @classmethod
     def load(cls, ckpt: str | Path, sensor_hw: tuple[int, int], mode: Mode = "main",
@@ -213,7 +224,11 @@ class Reconstructor:
                               given, activity)
         return replace(self, stacks=replace(self.stacks,
                                             events_per_channel=choice.events_per_channel),
-                       stack_choice=choice)
+                       stack_choice=choice, memory=Memory())
+
+    def reset(self) -> None:
+        """Forget what earlier outputs left in the memory (before a new recording)."""
+        self.memory.state = None
 
     @property
     def engine_name(self) -> str:
@@ -265,7 +280,9 @@ class Reconstructor:
             history: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
         """(float32[sH, sW] image in [0, 1], seconds spent in flow and network) for uint8
         stacks ``[n, c, H, W]`` (and the APS frame for Complementary, the event history
-        float32[k, H, W] for a model that reads one: :attr:`StackedEvents.history`)."""
+        float32[k, H, W] for a model that reads one: :attr:`StackedEvents.history`).
+        A network with memory across outputs reads the state the previous call left and
+        leaves its own: call it in time order, and :meth:`reset` between recordings."""
         timing = {}
         start = time.perf_counter()
         flows = stack_flows(stacks) if self.net.config.flow == "given" else \
@@ -275,7 +292,12 @@ class Reconstructor:
         x = torch.from_numpy(stack_to_input(stacks))[None].to(self.device)
         f = torch.from_numpy(flows)[None].to(self.device)
         central = self._central(x, f, aps, history)
-        out = (self.engine or self.net)(x, central, f).clamp(0, 1)[0, 0].float().cpu().numpy()
+        if self.net.config.memory:
+            out, self.memory.state = self.net(x, central, f, memory=self.memory.state,
+                                              return_state=True)
+        else:
+            out = (self.engine or self.net)(x, central, f)
+        out = out.clamp(0, 1)[0, 0].float().cpu().numpy()
         if self.device.type == "cuda":
             torch.cuda.synchronize()
         timing["network"] = time.perf_counter() - start
@@ -350,6 +372,7 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
     ``temporal``: weight of the blind temporal-consistency post-process (None: off); it
     needs only the previous frame, so memory stays bounded."""
     out = Path(out)
+    model.reset()
     window = model.event_window(recording.events(chunk), recording.sensor_hw, chunk)
     seconds = {"stacking": 0.0, "flow": 0.0, "network": 0.0}
     paths, times, previous = [], [], None

@@ -16,7 +16,7 @@ import torch.distributed as dist
 from datagen.shard import find_shards
 from model.config import TrainConfig
 from model.data.config import DataConfig
-from model.data.dataset import ShardSamples, index_samples
+from model.data.dataset import ClipSamples, ShardSamples, clips_of, index_samples
 from model.data.input_cache import CacheSpec, InputCache
 
 
@@ -84,7 +84,14 @@ def build_data(config: TrainConfig, data: str | Path, env: Distributed = Distrib
     data_cfg = data_config or cfg.data
     shards = find_shards(data)
     train_refs, val_refs = index_samples(shards, data_cfg, cfg.model.n_stacks, cfg.model.scale)
-    if spread_val and run.val_batches is not None:
+    clip = data_cfg.clip
+    if clip > 1:  # memory across outputs: clips of consecutive frames
+        train_clips, val_clips = clips_of(train_refs, clip), clips_of(val_refs, clip)
+        if spread_val and run.val_batches is not None:
+            val_clips = spread(val_clips, run.val_batches * cfg.optim.batch_size)
+        train_refs = [r for c in train_clips for r in c]
+        val_refs = [r for c in val_clips for r in c]
+    elif spread_val and run.val_batches is not None:
         val_refs = spread(val_refs, run.val_batches * cfg.optim.batch_size)
     cache = None
     if use_cache and data_cfg.cache:
@@ -93,10 +100,16 @@ def build_data(config: TrainConfig, data: str | Path, env: Distributed = Distrib
         cache = InputCache.build(shards, train_refs + val_refs, spec,
                                  workers=max(1, os.cpu_count() or 1) if env.main else 1)
     history = cfg.model.history
-    train_set = ShardSamples(train_refs, data_cfg, cfg.model.n_stacks, cfg.model.scale, True,
-                             run.seed, cache, history)
-    val_set = ShardSamples(val_refs, data_cfg, cfg.model.n_stacks, cfg.model.scale, False,
-                           cache=cache, history=history)
+    if clip > 1:
+        train_set = ClipSamples(train_clips, data_cfg, cfg.model.n_stacks, cfg.model.scale,
+                                True, run.seed, cache, history)
+        val_set = ClipSamples(val_clips, data_cfg, cfg.model.n_stacks, cfg.model.scale,
+                              False, cache=cache, history=history)
+    else:
+        train_set = ShardSamples(train_refs, data_cfg, cfg.model.n_stacks, cfg.model.scale,
+                                 True, run.seed, cache, history)
+        val_set = ShardSamples(val_refs, data_cfg, cfg.model.n_stacks, cfg.model.scale,
+                               False, cache=cache, history=history)
     steps = len(epoch_batches(len(train_set), cfg.optim.batch_size, run.seed, 0, env.rank,
                               env.world))
     if steps == 0:

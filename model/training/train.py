@@ -59,6 +59,32 @@ def central_input(batch: dict, config: TrainConfig, first_pass: E2SRI | None) ->
                                     batch["lr"], first_pass, batch.get("history"))
 
 
+def frames_of(batch: dict) -> list[dict]:
+    """A batch's outputs in time order: the batch itself, or, for clips of consecutive
+    outputs (``data.clip``: tensors ``(B, L, ...)``), one batch per position in the clip."""
+    if batch["hr"].ndim == 4:
+        return [batch]
+    return [{k: v[:, t] for k, v in batch.items() if k != "index"}
+            for t in range(batch["hr"].shape[1])]
+
+
+def run_frames(model, batch: dict, config: TrainConfig, first_pass: E2SRI | None
+               ) -> list[tuple[torch.Tensor, dict]]:
+    """(output, its frame's batch) for every output of ``batch`` in time order; a network
+    with memory (``model.memory``) carries its state from each output to the next, starting
+    from none, and gradients flow back through the whole clip."""
+    memory, outputs = None, []
+    for frame in frames_of(batch):
+        central = central_input(frame, config, first_pass)
+        if config.model.memory:
+            out, memory = model(frame["stacks"], central, frame["flows"], memory=memory,
+                                return_state=True)
+        else:
+            out = model(frame["stacks"], central, frame["flows"])
+        outputs.append((out, frame))
+    return outputs
+
+
 @torch.inference_mode()
 def validate(net: E2SRI, loader: DataLoader, config: TrainConfig, device: torch.device,
              first_pass: E2SRI | None, lpips_net, max_batches: int | None = None
@@ -70,19 +96,19 @@ def validate(net: E2SRI, loader: DataLoader, config: TrainConfig, device: torch.
         if max_batches is not None and b >= max_batches:
             break
         batch = {k: v.to(device) for k, v in batch.items()}
-        out = net(batch["stacks"], central_input(batch, config, first_pass),
-                  batch["flows"]).float().clamp(0, 1)
-        hr = batch["hr"]
-        values = {"psnr": psnr(out, hr), "ssim": ssim(out, hr), "mse": mse(out, hr)}
-        if lpips_net is not None:
-            values["lpips"] = lpips_net(out, hr)
-        for k, v in values.items():
-            sums[k] += float(v.sum())
-        count += len(hr)
-        if len(examples) < 4:
+        for out, frame in run_frames(net, batch, config, first_pass):
+            out, hr = out.float().clamp(0, 1), frame["hr"]
+            values = {"psnr": psnr(out, hr), "ssim": ssim(out, hr), "mse": mse(out, hr)}
+            if lpips_net is not None:
+                values["lpips"] = lpips_net(out, hr)
+            for k, v in values.items():
+                sums[k] += float(v.sum())
+            count += len(hr)
+        if len(examples) < 4:  # a clip's last output: the one with the most memory
             mid = config.model.n_stacks // 2
-            examples.append((batch["stacks"][0, mid].cpu().numpy(), batch["lr"][0, 0].cpu().numpy(),
-                             out[0, 0].cpu().numpy(), hr[0, 0].cpu().numpy()))
+            examples.append((frame["stacks"][0, mid].cpu().numpy(),
+                             frame["lr"][0, 0].cpu().numpy(), out[0, 0].cpu().numpy(),
+                             hr[0, 0].cpu().numpy()))
     net.train()
     if lpips_net is None:
         sums.pop("lpips")
@@ -231,7 +257,8 @@ class RunLog:
             self.writer.add_scalar(f"val/{k}", v, state.step)
         self.history.add(state.step, state.train_seconds() / 3600, metrics)
         self.history.save()
-        self.history.plot(self.out / "val_curve.png", f"validation: {len(self.data.val_set)} "
+        frames = len(self.data.val_set) * cfg.data.clip
+        self.history.plot(self.out / "val_curve.png", f"validation: {frames} "
                           f"held-out frames, whole {hw[1]}x{hw[0]} -> x{cfg.model.scale}, "
                           f"outputs clipped to [0, 1], no intensity fit")
         return metrics, examples
@@ -251,9 +278,8 @@ def train_one_epoch(state: TrainState, data: TrainData, cfg: TrainConfig, env: D
         batch = {k: v.to(env.device, non_blocking=True) for k, v in batch.items()}
         with torch.autocast(env.device.type, dtype=state.amp_dtype) if state.amp_dtype \
                 else nullcontext():
-            output = state.model(batch["stacks"], central_input(batch, cfg, state.first_pass),
-                                 batch["flows"])
-        loss, parts = state.criterion(output.float(), batch["hr"], batch["stacks"])
+            outputs = run_frames(state.model, batch, cfg, state.first_pass)
+        loss, parts = clip_loss(state.criterion, outputs)
         if not torch.isfinite(loss):
             report.save(state, out / f"nan_step{state.step}.pt")
             raise FloatingPointError(f"loss is {loss.item()} at step {state.step}; the state "
@@ -278,6 +304,19 @@ def train_one_epoch(state: TrainState, data: TrainData, cfg: TrainConfig, env: D
         if stop:
             return True
     return False
+
+
+def clip_loss(criterion: SimilarityLoss, outputs: list[tuple[torch.Tensor, dict]]
+              ) -> tuple[torch.Tensor, dict]:
+    """The loss of each output against its frame's target, averaged over a clip's outputs
+    (a single output: its loss)."""
+    losses, parts = [], {}
+    for out, frame in outputs:
+        loss, p = criterion(out.float(), frame["hr"], frame["stacks"])
+        losses.append(loss)
+        for k, v in p.items():
+            parts[k] = parts.get(k, 0.0) + v / len(outputs)
+    return torch.stack(losses).mean(), parts
 
 
 def _optimise(state: TrainState, loss: torch.Tensor, grad_clip: float | None) -> None:

@@ -33,9 +33,9 @@ log = logging.getLogger(__name__)
 
 LIFT = "mix.1"  # the sub-pixel convolution of the LR-state variant
 # what a warm start may change: no tensor, or new ones that start at zero (the context
-# branch's residuals, the history's input columns)
+# branch's residuals, the history's input columns, the memory's input convolution)
 FREE = ("scale", "lift", "context", "context_far", "context_global", "context_support",
-        "context_gate", "history")
+        "context_gate", "history", "memory")
 WIDENED = ("efr0.0.0.weight", "efr.0.0.weight")  # first convolutions that read the central
 # input: the history's channels are inserted after the old central channels
 
@@ -90,12 +90,12 @@ def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
     if dataclasses.replace(old, scale=new.scale, lift=new.lift, context=new.context,
                            context_far=new.context_far, context_global=new.context_global,
                            context_support=new.context_support, context_gate=new.context_gate,
-                           history=new.history) != new:
+                           history=new.history, memory=new.memory) != new:
         differ = [f.name for f in dataclasses.fields(NetConfig) if f.name not in FREE
                   and getattr(old, f.name) != getattr(new, f.name)]
         raise ValueError(f"{source}: its network differs in {', '.join(differ)}; a warm start "
-                         f"may change only the scale, the lift filter and the context "
-                         f"branch")
+                         f"may change only the scale, the lift filter, the context "
+                         f"branch, the event history and the memory")
     if old.context and new.context != old.context:
         raise ValueError(f"{source}: its context branch (width {old.context}) would be lost "
                          f"or left fresh (model.context: {new.context})")
@@ -111,6 +111,9 @@ def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
     if old.history and new.history != old.history:
         raise ValueError(f"{source}: its event history (time constants {old.history}) "
                          f"differs from model.history {new.history}")
+    if old.memory and not new.memory:
+        raise ValueError(f"{source}: its memory across outputs would be lost "
+                         f"(model.memory: false)")
     if new.scale % old.scale:
         raise ValueError(f"{source}: an x{old.scale} model cannot start an x{new.scale} one "
                          f"(the new scale must be a multiple of the old)")
