@@ -118,6 +118,20 @@ def anchors_of(n_events: int, max_per_stack: int, n_out: int) -> list[int]:
     return sorted({int(a) for a in np.linspace(lo, hi, n_out + 2)[1:-1]})
 
 
+def warm_memory(model, window, ev, anchor: int, per_stack: int) -> None:
+    """A model with memory across outputs (``model.memory``) first sees the outputs of the
+    ``per_stack`` events before ``anchor`` (up to 8), as ``reconstruct`` would have run it;
+    any other model is left as it is."""
+    from model.inference.halo_probe import memory_anchors, raw_output
+
+    model.reset()
+    if not model.net.config.memory:
+        return
+    for a in memory_anchors(anchor, per_stack, model.net.config.n_stacks):
+        given = model.stacks_at(window, int(ev.t_ns[a - 1]))
+        raw_output(model, given.stacks, given.history)
+
+
 # ------------------------------------------------------------------ simulated oracle
 
 
@@ -164,6 +178,7 @@ def probe_sequences(seqs, models: dict, factors: list[float], n_out: int, tag: d
                 for mname, model in models.items():
                     m = model.with_stacks(n)
                     window = EventWindow(iter([ev]), hw, history=bool(m.net.config.history))
+                    warm_memory(m, window, ev, a, n)
                     given = m.stacks_at(window, t)
                     raw = raw_output(m, given.stacks, given.history)
                     for norm in NORMS:
@@ -234,6 +249,7 @@ def ecd_probe(models: dict, folder: Path, names: list[str], factors: list[float]
                     window = EventWindow(iter([ev]), ev.sensor_hw,
                                          history=bool(m.net.config.history))
                     t = int(ev.t_ns[a - 1])
+                    warm_memory(m, window, ev, a, n)
                     given = m.stacks_at(window, t)
                     img = np.clip(raw_output(m, given.stacks, given.history), 0, 1)
                     stats.append(self_rings(img, 2, 16))

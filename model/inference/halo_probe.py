@@ -332,11 +332,26 @@ def stack_window(anchor: int, per_stack: int, n_stacks: int = 3) -> StackWindow:
 def raw_output(model, stacks: np.ndarray, history: np.ndarray | None = None) -> np.ndarray:
     """float32[sH, sW]: the network's output for uint8 ``stacks[n, c, H, W]`` (and the
     event history of a model that reads one) *before* the clamp to [0, 1] that
-    ``Reconstructor.run`` applies (main mode, eager PyTorch)."""
+    ``Reconstructor.run`` applies (main mode, eager PyTorch). A model with memory across
+    outputs reads and updates ``model.memory`` as :meth:`Reconstructor.run` does."""
     net = model.net
     flows = stack_flows(stacks) if net.config.flow == "given" else \
         np.zeros((len(stacks), 2) + stacks.shape[-2:], np.float32)
     x = torch.from_numpy(stack_to_input(stacks))[None].to(model.device)
     f = torch.from_numpy(flows)[None].to(model.device)
     central = model._central(x, f, None, history)
+    if net.config.memory:  # the state the previous call left, and this output's for the next
+        out, model.memory.state = net(x, central, f, memory=model.memory.state,
+                                      return_state=True)
+        return out[0, 0].float().cpu().numpy()
     return net(x, central, f)[0, 0].float().cpu().numpy()
+
+
+def memory_anchors(anchor: int, per_stack: int, n_stacks: int = 3, before: int = 8
+                   ) -> list[int]:
+    """Anchors of up to ``before`` outputs, one every ``per_stack`` events, before the one at
+    ``anchor``, whose stacks all lie inside the events (the first starts at index >= 0): what
+    a model with memory across outputs has seen before it, as ``reconstruct`` would have
+    fed it at the end of every stack."""
+    need = (n_stacks // 2 + 1) * per_stack
+    return [a for a in range(anchor - before * per_stack, anchor, per_stack) if a >= need]

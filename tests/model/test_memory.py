@@ -166,3 +166,12 @@ def test_scoring_every_kth_frame_feeds_the_frames_between_to_the_memory(tiny_sha
         assert np.array_equal(a, b)
     assert not np.array_equal(every[1], run_sequence(rec, model, ids[1:2], None, options,
                                                       "alone").images["ours"][0])
+
+
+def test_the_halo_probe_feeds_a_memory_the_outputs_before():
+    from model.inference.halo_probe import memory_anchors, stack_window
+
+    got = memory_anchors(10_000, 1_000)
+    assert got == list(range(2_000, 10_000, 1_000))  # 8 outputs, every stack
+    assert all(stack_window(a, 1_000).first >= 0 for a in got)
+    assert memory_anchors(2_500, 1_000) == [] and memory_anchors(3_500, 1_000) == [2_500]
