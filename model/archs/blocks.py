@@ -116,6 +116,10 @@ class ContextBranch(nn.Module):
     ``bench/context_ablation.py`` traced to the 16x16 path). The near path is the 4x4 one.
     Trained (run L, docs/models.md), it learned the same cloud: the grain was not the cause.
 
+    ``far="none"`` keeps the near (4x4) path alone: what ``bench/context_ablation.py``
+    calls ``no-far``, as a network of its own, for a network that carries its state across
+    outputs (``model.memory``) and may fill what its edges swept from that instead.
+
     ``global_path`` adds a path that sees the whole frame: the mean over all pixels of a 1x1
     projection of the features (after a ReLU), concatenated to every pixel's features, a
     1x1 convolution and a ReLU, then its own zero-initialised 1x1 residual (``g_out``), so a
@@ -142,9 +146,11 @@ class ContextBranch(nn.Module):
     def __init__(self, channels: int, width: int, factors: tuple[int, ...] = (4, 16),
                  far: str = "cells", global_path: bool = False, support: bool = False) -> None:
         super().__init__()
-        if far not in ("cells", "dilated"):
-            raise ValueError(f"far must be cells or dilated, got {far!r}")
+        if far not in ("cells", "dilated", "none"):
+            raise ValueError(f"far must be cells, dilated or none, got {far!r}")
         self.far_kind = far
+        if far == "none":  # the near path alone (a memory across outputs may carry the rest)
+            factors = tuple(factors[:1])
         if far == "dilated":
             factors = (FAR_CELL,)
             self.far = nn.Sequential(conv(channels, width),

@@ -87,6 +87,8 @@ class NetConfig:
             far with a 4-pixel grain (:class:`model.archs.blocks.ContextBranch`). A
             ``cells`` model warm-starts a ``dilated`` one with the far path fresh and its
             share of the residual at zero: it computes what it did without its 16x16 path.
+            ``none``: the near (4x4) path alone; a ``cells`` model warm-starts it as itself
+            without its 16x16 path (``bench/context_ablation.py``'s ``no-far``).
         context_global: add the branch's whole-frame path (the frame mean of its features
             beside every pixel, its own zero-initialised residual); a branch without it
             warm-starts one with it exactly.
@@ -135,7 +137,7 @@ class NetConfig:
     fold: int = 1
     lift: Literal["shuffle", "smooth"] = "shuffle"
     context: int = 0
-    context_far: Literal["cells", "dilated"] = "cells"
+    context_far: Literal["cells", "dilated", "none"] = "cells"
     context_global: bool = False
     context_support: bool = False
     context_gate: float = 0.0
@@ -163,8 +165,8 @@ class NetConfig:
             raise ValueError(f"model.context_gate ({self.context_gate}) needs a context branch, "
                              f"fold 1 and the same time constant in model.history "
                              f"({list(self.history)})")
-        if self.context_far not in ("cells", "dilated"):
-            raise ValueError(f"model.context_far must be cells or dilated, got "
+        if self.context_far not in ("cells", "dilated", "none"):
+            raise ValueError(f"model.context_far must be cells, dilated or none, got "
                              f"{self.context_far!r}")
         if self.memory and self.state != "lr":
             raise ValueError("model.memory needs the CPU variant's LR state (state: lr)")

@@ -105,6 +105,9 @@ def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
     if old.context_support and not new.context_support:
         raise ValueError(f"{source}: its context branch's support path would be lost "
                          f"(model.context_support: false)")
+    if old.context and old.context_far != new.context_far and old.context_far == "none":
+        raise ValueError(f"{source}: a context branch without a far path cannot start one "
+                         f"with a far path (model.context_far: {new.context_far})")
     if old.context and old.context_far != new.context_far and old.context_far != "cells":
         raise ValueError(f"{source}: its context branch's far path ({old.context_far}) "
                          f"would be lost (model.context_far: {new.context_far})")
@@ -140,7 +143,13 @@ def warm_start(net: E2SRI, source: str | Path) -> WarmStart:
                 lifted.append(name)
             else:
                 fresh.append(name)
-        if old.context and old.context_far != new.context_far:
+        if old.context and old.context_far != new.context_far and new.context_far == "none":
+            # the 16x16 path is dropped with its columns of the residual: the new network
+            # computes the old one without it (the near path's columns come first)
+            net.context.out.weight.copy_(saved["context.out.weight"][:, :new.context])
+            fresh.remove("context.out.weight")
+            copied.append("context.out.weight (near columns)")
+        elif old.context and old.context_far != new.context_far:
             # the 16x16 path is dropped: its columns of the residual start at zero, so the
             # new network computes the old one without it, the dilated path fresh beside it
             net.context.out.weight[:, new.context * len(net.context.factors):] = 0

@@ -166,6 +166,24 @@ def test_a_cells_model_warm_starts_a_dilated_one_as_itself_without_its_16x16_pat
         warm_start(E2SRI(NetConfig(**SMALL, context=8)), path)
 
 
+def test_a_cells_model_warm_starts_one_without_a_far_path_as_its_no_far_ablation(tmp_path):
+    cells, path = trained_context_model(tmp_path / "cells.pt", 1)
+    near = E2SRI(NetConfig(**SMALL, context=8, context_far="none")).eval()
+    done = warm_start(near, path)
+    assert "context.out.weight (near columns)" in done.copied and not done.fresh
+    assert near.context.factors == (4,) and near.context.out.weight.shape[1] == 8
+    assert reach(near) < 48 <= reach(cells)  # the 16x16 cells' reach is gone
+    # the oracle: bench/context_ablation.py's no-far, the 16x16 path's columns zeroed
+    with torch.no_grad():
+        cells.context.out.weight[:, 8:] = 0
+        x = inputs((40, 48), seed=5)
+        assert torch.allclose(near(*x), cells(*x), atol=1e-6)
+    path = checkpoint.save(tmp_path / "near.pt", config="", net=checkpoint.net_args(near),
+                           model=near.state_dict())
+    with pytest.raises(ValueError, match="without a far path"):
+        warm_start(E2SRI(NetConfig(**SMALL, context=8)), path)
+
+
 def test_context_far_is_checked():
     with pytest.raises(ValueError, match="model.context_far"):
         NetConfig(state="lr", context=8, context_far="pyramid")
