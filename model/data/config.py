@@ -37,6 +37,10 @@ class DataConfig:
             memory across outputs (``model.memory``) trains on clips of ``clip`` consecutive
             frames of one sequence, cropped and flipped alike, its state carried from each
             to the next; each frame belongs to at most one clip.
+        clip_stride: frames between a clip's outputs (1: consecutive frames). Shards hold a
+            frame every ``frames.every_events`` events (3,000 in the training recipes), a
+            third of a 9,000-event stack; ``reconstruct`` outputs once a stack, so a stride of
+            3 trains the memory on the spacing it is run at.
     """
 
     stacks: StackConfig = field(default_factory=StackConfig)
@@ -47,6 +51,7 @@ class DataConfig:
     cache: bool = False
     stack_rule: Literal["fixed", "active"] = "fixed"
     clip: int = 1
+    clip_stride: int = 1
 
     def __post_init__(self) -> None:
         if self.stack_rule not in ("fixed", "active"):
@@ -55,7 +60,8 @@ class DataConfig:
             raise ValueError("data.stack_rule: active needs SBN stacks without overlap")
         if self.crop is not None and self.crop < 16:
             raise ValueError("crop must be >= 16 (or null for whole frames)")
-        if self.clip < 1:
-            raise ValueError(f"data.clip must be >= 1, got {self.clip}")
+        if self.clip < 1 or self.clip_stride < 1:
+            raise ValueError(f"data.clip and data.clip_stride must be >= 1, got {self.clip} "
+                             f"and {self.clip_stride}")
         if not 0 <= self.val_fraction < 1:
             raise ValueError("val_fraction must be in [0, 1)")

@@ -271,20 +271,22 @@ class ShardSamples(Dataset):
         return item
 
 
-def clips_of(refs: list[SampleRef], length: int) -> list[tuple[SampleRef, ...]]:
-    """``refs`` cut into clips of ``length`` consecutive frames of one sequence, in order;
-    each frame in at most one clip (a run of consecutive frames is cut from its start, its
-    remainder dropped)."""
-    clips, run = [], []
+def clips_of(refs: list[SampleRef], length: int, stride: int = 1
+             ) -> list[tuple[SampleRef, ...]]:
+    """``refs`` cut into clips of ``length`` frames of one sequence, ``stride`` frames apart,
+    in order; each frame in at most one clip. A run of consecutive frames is cut from its
+    start into blocks of ``length * stride`` frames, each holding ``stride`` interleaved
+    clips; what is left over is dropped."""
+    runs: list[list[SampleRef]] = []
     for ref in refs:
-        if run and (ref.path, ref.sequence, ref.frame) != \
-                (run[-1].path, run[-1].sequence, run[-1].frame + 1):
-            run = []
-        run.append(ref)
-        if len(run) == length:
-            clips.append(tuple(run))
-            run = []
-    return clips
+        last = runs[-1][-1] if runs else None
+        if last is None or (ref.path, ref.sequence, ref.frame) != \
+                (last.path, last.sequence, last.frame + 1):
+            runs.append([])
+        runs[-1].append(ref)
+    span = length * stride
+    return [tuple(run[b + o:b + span:stride]) for run in runs
+            for b in range(0, len(run) - span + 1, span) for o in range(stride)]
 
 
 class ClipSamples(ShardSamples):

@@ -86,7 +86,9 @@ def build_data(config: TrainConfig, data: str | Path, env: Distributed = Distrib
     train_refs, val_refs = index_samples(shards, data_cfg, cfg.model.n_stacks, cfg.model.scale)
     clip = data_cfg.clip
     if clip > 1:  # memory across outputs: clips of consecutive frames
-        train_clips, val_clips = clips_of(train_refs, clip), clips_of(val_refs, clip)
+        stride = data_cfg.clip_stride
+        train_clips = clips_of(train_refs, clip, stride)
+        val_clips = clips_of(val_refs, clip, stride)
         if spread_val and run.val_batches is not None:
             val_clips = spread(val_clips, run.val_batches * cfg.optim.batch_size)
         train_refs = [r for c in train_clips for r in c]

@@ -13,7 +13,7 @@ from esim_lite.core.stacking import StackConfig
 from model import checkpoint
 from model.archs.e2sri_arch import E2SRI, NetConfig
 from model.data.config import DataConfig
-from model.data.dataset import ClipSamples, ShardSamples, clips_of, index_samples
+from model.data.dataset import ClipSamples, SampleRef, ShardSamples, clips_of, index_samples
 from model.inference.engines import load_engine
 from model.inference.pretrained import shipped_checkpoint
 from model.inference.reconstruct import Reconstructor, plan_outputs, reconstruct
@@ -102,6 +102,11 @@ def test_clips_are_consecutive_frames_cropped_alike(tiny_shards):
     r0, r1, r2 = clips[0]
     assert clips_of([r0, r2], 2) == [] and clips_of([r0, r2, r1, r2], 2) == [(r1, r2)]
     assert clips_of([r0, r1, r2], 2) == [(r0, r1)]
+    # a stride: interleaved clips, each frame in one
+    run = [SampleRef("a.h5", "seq", k, 100 * k, 10 * k, 100) for k in range(1, 14)]
+    strided = clips_of(run, 2, stride=3)
+    assert [[r.frame for r in c] for c in strided] == \
+        [[1, 4], [2, 5], [3, 6], [7, 10], [8, 11], [9, 12]]
     ds = ClipSamples(clips, data, 3, 2, train=True, seed=5)
     item = ds[0]
     assert item["stacks"].shape == (3, 3, 3, 32, 32) and item["hr"].shape == (3, 1, 64, 64)
