@@ -165,6 +165,8 @@ class NetConfig:
             raise ValueError(f"model.context_gate ({self.context_gate}) needs a context branch, "
                              f"fold 1 and the same time constant in model.history "
                              f"({list(self.history)})")
+        if self.context_gate and self.context_far == "none":
+            raise ValueError("model.context_gate gates the far path; context_far: none has none")
         if self.context_far not in ("cells", "dilated", "none"):
             raise ValueError(f"model.context_far must be cells, dilated or none, got "
                              f"{self.context_far!r}")

@@ -185,6 +185,8 @@ def test_a_cells_model_warm_starts_one_without_a_far_path_as_its_no_far_ablation
 
 
 def test_context_far_is_checked():
+    with pytest.raises(ValueError, match="gates the far path"):
+        NetConfig(**SMALL, context=8, context_far="none", history=(8.0,), context_gate=8.0)
     with pytest.raises(ValueError, match="model.context_far"):
         NetConfig(state="lr", context=8, context_far="pyramid")
 

@@ -86,6 +86,7 @@ TINY = dict(base_channels=8, hr_channels=4, c_blocks=1, blocks=1)
     dict(state="lr", context=4),  # pooled cells (partial at odd sizes), bilinear back
     dict(state="lr", fold=2, context=4),
     dict(state="lr", context=4, context_far="dilated"),  # dilated convs on a tiny cell grid
+    dict(state="lr", context=4, context_far="none"),  # the near path alone
     dict(state="lr", context=4, context_global=True),  # the frame mean, at every size
     dict(state="lr", context=4, context_support=True),  # means over the fired pixels
     dict(state="lr", fold=2, context=4, context_support=True),

@@ -180,3 +180,28 @@ def test_the_halo_probe_feeds_a_memory_the_outputs_before():
     assert got == list(range(2_000, 10_000, 1_000))  # 8 outputs, every stack
     assert all(stack_window(a, 1_000).first >= 0 for a in got)
     assert memory_anchors(2_500, 1_000) == [] and memory_anchors(3_500, 1_000) == [2_500]
+
+
+def test_the_memory_use_benchmark_sees_a_memory_only_when_it_counts(tiny_shards, tmp_path):
+    from tests.conftest import REAL_EVENTS
+    from tests.model.conftest import bench_module
+
+    snippet = REAL_EVENTS / "ecd_snippets" / "shapes_translation"
+    if not snippet.is_dir():
+        pytest.skip("no real recordings beside the repository")
+    bench = bench_module("memory_use")
+    cfg = tiny_config("model.state=lr", "model.memory=true", "data.clip=2", "run.max_steps=1",
+                      "run.val_batches=1")
+    train(cfg, tiny_shards, tmp_path / "run", show_progress=False)
+    ckpt = checkpoint.load(tmp_path / "run" / "last.pt")
+    net = checkpoint.load_model(tmp_path / "run" / "last.pt")
+    for name, std in (("zero", 0.0), ("used", 0.3)):
+        as_if_trained(net, (48, 64))
+        with torch.no_grad():
+            torch.nn.init.normal_(net.memory_in.weight, std=std) if std else \
+                net.memory_in.weight.zero_()
+        checkpoint.save(tmp_path / f"{name}.pt", **{**ckpt, "model": net.state_dict()})
+    zero = bench.memory_use(str(tmp_path / "zero.pt"), snippet, 4)
+    used = bench.memory_use(str(tmp_path / "used.pt"), snippet, 4)
+    assert zero["outputs"] == used["outputs"] == 4
+    assert zero["last10"] == 0 and used["first"] == 0 < used["last10"]

@@ -1,0 +1,98 @@
+"""How much a model with memory across outputs (``model.memory``) uses it on real recordings.
+
+Run: .venv/bin/python bench/memory_use.py CKPT [--outputs 40] [--recordings DIR ...]
+
+For every real recording (the DAVIS346 files and the ECD snippets of ../shared/real_events
+by default) the model runs once a stack, in time order, as ``reconstruct`` does; at each
+output it also runs on the same stacks with an empty memory (the state is put back
+afterwards, so the chain is the model's own). Printed per recording: outputs made, the mean
+absolute difference between the two outputs at the first output (0: no memory yet) and
+over the last ten, and the share of HR pixels that differ by more than 0.02 over the last
+ten. A model whose memory input stayed near its zero start prints zeros.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL = ROOT.parent / "shared" / "real_events"
+ECD_HW = (180, 240)
+
+
+def recordings(folders: list[Path]) -> list[Path]:
+    found = []
+    for folder in folders:
+        found += sorted(folder.glob("davis346/*.aedat4")) + sorted(
+            p for p in (folder / "ecd_snippets").glob("*") if p.is_dir())
+    return found
+
+
+def memory_use(ckpt: str, path: Path, outputs: int) -> dict:
+    from datagen.recording import open_recording
+    from model.inference.reconstruct import Reconstructor, output_times, plan_outputs
+    from model.inference.stack_size import activity_of
+
+    rec = open_recording(path, ECD_HW) if path.is_dir() else open_recording(path)
+    events = rec.read_all()
+    model = Reconstructor.load(ckpt, rec.sensor_hw, device="cpu",
+                               activity=activity_of(events))
+    if not model.net.config.memory:
+        raise ValueError(f"{ckpt}: the network carries no memory across outputs")
+    window = model.event_window(iter([events]), rec.sensor_hw, len(events) + 1)
+    plan = plan_outputs(rec, model.stacks, "events")
+    diffs = []
+    model.reset()
+    for t, _ in output_times(plan, rec, window):
+        given = model.stacks_at(window, t)
+        kept, _ = model.run(given.stacks, None, given.history)
+        state = model.memory.state
+        model.memory.state = None
+        fresh, _ = model.run(given.stacks, None, given.history)
+        model.memory.state = state
+        diffs.append(np.abs(kept - fresh))
+        if len(diffs) >= outputs:
+            break
+    last = np.stack(diffs[-10:])
+    return {"recording": path.name, "outputs": len(diffs),
+            "per_stack": model.stacks.events_per_stack, "first": float(diffs[0].mean()),
+            "last10": float(last.mean()), "share": float((last > 0.02).mean())}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("checkpoint")
+    p.add_argument("--outputs", type=int, default=40, help="outputs per recording (at most)")
+    p.add_argument("--recordings", type=Path, nargs="*", default=[REAL],
+                   help="folders laid out as ../shared/real_events")
+    args = p.parse_args(argv)
+    found = recordings(args.recordings)
+    if not found:
+        print(f"no recordings under {', '.join(map(str, args.recordings))}", file=sys.stderr)
+        return 2
+    start = time.perf_counter()
+    print("```\n" + shlex.join([".venv/bin/python", "bench/memory_use.py",
+                                 *(argv if argv is not None else sys.argv[1:])]) + "\n```\n")
+    print("| recording | outputs | events per stack | mean diff, first | mean diff, last 10 "
+          "| share > 0.02, last 10 |")
+    print("|---|---|---|---|---|---|")
+    for path in found:
+        try:
+            r = memory_use(args.checkpoint, path, args.outputs)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        print(f"| {r['recording']} | {r['outputs']} | {r['per_stack']:,} | {r['first']:.4f} "
+              f"| {r['last10']:.4f} | {r['share']:.3f} |")
+    print(f"\n{time.perf_counter() - start:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
