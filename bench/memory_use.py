@@ -1,6 +1,7 @@
 """How much a model with memory across outputs (``model.memory``) uses it on real recordings.
 
 Run: .venv/bin/python bench/memory_use.py CKPT [--outputs 40] [--recordings DIR ...]
+         [--figure PNG]
 
 For every real recording (the DAVIS346 files and the ECD snippets of ../shared/real_events
 by default) the model runs once a stack, in time order, as ``reconstruct`` does; at each
@@ -8,7 +9,9 @@ output it also runs on the same stacks with an empty memory (the state is put ba
 afterwards, so the chain is the model's own). Printed per recording: outputs made, the mean
 absolute difference between the two outputs at the first output (0: no memory yet) and
 over the last ten, and the share of HR pixels that differ by more than 0.02 over the last
-ten. A model whose memory input stayed near its zero start prints zeros.
+ten; and the carried state's mean magnitude at outputs 1, 4, 10, 20 and the last, which
+shows whether the memory settles or keeps growing past the clips it was trained on.
+``--figure`` writes one row per recording: the outputs at those counts.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "real_events"
 ECD_HW = (180, 240)
+MARKS = (1, 4, 10, 20)  # outputs whose state size and image are reported (and the last)
 
 
 def recordings(folders: list[Path]) -> list[Path]:
@@ -47,7 +51,7 @@ def memory_use(ckpt: str, path: Path, outputs: int) -> dict:
         raise ValueError(f"{ckpt}: the network carries no memory across outputs")
     window = model.event_window(iter([events]), rec.sensor_hw, len(events) + 1)
     plan = plan_outputs(rec, model.stacks, "events")
-    diffs = []
+    diffs, sizes, shown = [], [], []
     model.reset()
     for t, _ in output_times(plan, rec, window):
         given = model.stacks_at(window, t)
@@ -57,12 +61,19 @@ def memory_use(ckpt: str, path: Path, outputs: int) -> dict:
         fresh, _ = model.run(given.stacks, None, given.history)
         model.memory.state = state
         diffs.append(np.abs(kept - fresh))
+        sizes.append(float(state.abs().mean()))
+        if len(diffs) in MARKS:
+            shown.append((kept, f"output {len(diffs)}"))
         if len(diffs) >= outputs:
             break
+    if len(diffs) not in MARKS:
+        shown.append((kept, f"output {len(diffs)}"))
     last = np.stack(diffs[-10:])
     return {"recording": path.name, "outputs": len(diffs),
             "per_stack": model.stacks.events_per_stack, "first": float(diffs[0].mean()),
-            "last10": float(last.mean()), "share": float((last > 0.02).mean())}
+            "last10": float(last.mean()), "share": float((last > 0.02).mean()),
+            "state": [sizes[k - 1] for k in MARKS if k <= len(sizes)] +
+            ([sizes[-1]] if len(sizes) not in MARKS else []), "shown": shown}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -71,6 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--outputs", type=int, default=40, help="outputs per recording (at most)")
     p.add_argument("--recordings", type=Path, nargs="*", default=[REAL],
                    help="folders laid out as ../shared/real_events")
+    p.add_argument("--figure", type=Path, help="PNG of the outputs at 1, 4, 10, 20, last")
     args = p.parse_args(argv)
     found = recordings(args.recordings)
     if not found:
@@ -80,8 +92,9 @@ def main(argv: list[str] | None = None) -> int:
     print("```\n" + shlex.join([".venv/bin/python", "bench/memory_use.py",
                                  *(argv if argv is not None else sys.argv[1:])]) + "\n```\n")
     print("| recording | outputs | events per stack | mean diff, first | mean diff, last 10 "
-          "| share > 0.02, last 10 |")
-    print("|---|---|---|---|---|---|")
+          "| share > 0.02, last 10 | state size at 1 / 4 / 10 / 20 / last |")
+    print("|---|---|---|---|---|---|---|")
+    rows = []
     for path in found:
         try:
             r = memory_use(args.checkpoint, path, args.outputs)
@@ -89,7 +102,16 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return 2
         print(f"| {r['recording']} | {r['outputs']} | {r['per_stack']:,} | {r['first']:.4f} "
-              f"| {r['last10']:.4f} | {r['share']:.3f} |")
+              f"| {r['last10']:.4f} | {r['share']:.3f} | "
+              f"{' / '.join(f'{v:.3f}' for v in r['state'])} |")
+        rows.append([(img, f"{r['recording']}: {label}") for img, label in r["shown"]])
+    if args.figure:
+        from esim_lite.core.figures import contact_sheet, gray_to_rgb, write_png
+
+        sheet = contact_sheet([[(gray_to_rgb(img), label) for img, label in row]
+                               for row in rows], f"memory over outputs: {args.checkpoint}",
+                              height=180)
+        print(f"figure {write_png(args.figure, sheet)}")
     print(f"\n{time.perf_counter() - start:.0f} s")
     return 0
 
