@@ -1,7 +1,7 @@
 """How much a model with memory across outputs (``model.memory``) uses it on real recordings.
 
-Run: .venv/bin/python bench/memory_use.py CKPT [--outputs 40] [--recordings DIR ...]
-         [--figure PNG]
+Run: .venv/bin/python bench/memory_use.py [LABEL=]CKPT ... [--outputs 40]
+         [--recordings DIR ...] [--only NAME ...] [--figure PNG]
 
 For every real recording (the DAVIS346 files and the ECD snippets of ../shared/real_events
 by default) the model runs once a stack, in time order, as ``reconstruct`` does; at each
@@ -11,7 +11,8 @@ absolute difference between the two outputs at the first output (0: no memory ye
 over the last ten, and the share of HR pixels that differ by more than 0.02 over the last
 ten; and the carried state's mean magnitude at outputs 1, 4, 10, 20 and the last, which
 shows whether the memory settles or keeps growing past the clips it was trained on.
-``--figure`` writes one row per recording: the outputs at those counts.
+``--figure`` writes one row per model and recording: the outputs at those counts.
+``--only`` keeps the recordings whose name contains one of the given strings.
 """
 
 from __future__ import annotations
@@ -78,39 +79,45 @@ def memory_use(ckpt: str, path: Path, outputs: int) -> dict:
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    p.add_argument("checkpoint")
+    p.add_argument("checkpoints", nargs="+", metavar="[LABEL=]CKPT")
     p.add_argument("--outputs", type=int, default=40, help="outputs per recording (at most)")
     p.add_argument("--recordings", type=Path, nargs="*", default=[REAL],
                    help="folders laid out as ../shared/real_events")
     p.add_argument("--figure", type=Path, help="PNG of the outputs at 1, 4, 10, 20, last")
+    p.add_argument("--only", nargs="*", default=[], help="recording names to keep (substrings)")
     args = p.parse_args(argv)
-    found = recordings(args.recordings)
+    found = [f for f in recordings(args.recordings)
+             if not args.only or any(o in f.name for o in args.only)]
     if not found:
         print(f"no recordings under {', '.join(map(str, args.recordings))}", file=sys.stderr)
         return 2
     start = time.perf_counter()
     print("```\n" + shlex.join([".venv/bin/python", "bench/memory_use.py",
                                  *(argv if argv is not None else sys.argv[1:])]) + "\n```\n")
-    print("| recording | outputs | events per stack | mean diff, first | mean diff, last 10 "
-          "| share > 0.02, last 10 | state size at 1 / 4 / 10 / 20 / last |")
-    print("|---|---|---|---|---|---|---|")
+    print("| model | recording | outputs | events per stack | mean diff, first "
+          "| mean diff, last 10 | share > 0.02, last 10 | state size at 1 / 4 / 10 / 20 / last |")
+    print("|---|---|---|---|---|---|---|---|")
     rows = []
-    for path in found:
-        try:
-            r = memory_use(args.checkpoint, path, args.outputs)
-        except ValueError as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-        print(f"| {r['recording']} | {r['outputs']} | {r['per_stack']:,} | {r['first']:.4f} "
-              f"| {r['last10']:.4f} | {r['share']:.3f} | "
-              f"{' / '.join(f'{v:.3f}' for v in r['state'])} |")
-        rows.append([(img, f"{r['recording']}: {label}") for img, label in r["shown"]])
+    for item in args.checkpoints:
+        label, _, ckpt = item.rpartition("=")
+        label = label or ckpt
+        for path in found:
+            try:
+                r = memory_use(ckpt, path, args.outputs)
+            except (ValueError, FileNotFoundError) as exc:
+                print(f"error: {exc}", file=sys.stderr)
+                return 2
+            rows.append([(img, f"{label}, {r['recording']}: {text}")
+                         for img, text in r["shown"]])
+            print(f"| {label} | {r['recording']} | {r['outputs']} | {r['per_stack']:,} "
+                  f"| {r['first']:.4f} | {r['last10']:.4f} | {r['share']:.3f} | "
+                  f"{' / '.join(f'{v:.3f}' for v in r['state'])} |")
     if args.figure:
         from esim_lite.core.figures import contact_sheet, gray_to_rgb, write_png
 
         sheet = contact_sheet([[(gray_to_rgb(img), label) for img, label in row]
-                               for row in rows], f"memory over outputs: {args.checkpoint}",
-                              height=180)
+                               for row in rows], "memory across outputs: outputs along the "
+                              "chain, the memory carried from the first", height=180)
         print(f"figure {write_png(args.figure, sheet)}")
     print(f"\n{time.perf_counter() - start:.0f} s")
     return 0
