@@ -27,24 +27,17 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 REAL = ROOT.parent / "shared" / "real_events"
-ECD_HW = (180, 240)
 MARKS = (1, 4, 10, 20)  # outputs whose state size and image are reported (and the last)
-
-
-def recordings(folders: list[Path]) -> list[Path]:
-    found = []
-    for folder in folders:
-        found += sorted(folder.glob("davis346/*.aedat4")) + sorted(
-            p for p in (folder / "ecd_snippets").glob("*") if p.is_dir())
-    return found
 
 
 def memory_use(ckpt: str, path: Path, outputs: int) -> dict:
     from datagen.recording import open_recording
+    from model.inference.real_benchmark import ECD_SENSOR_HW, recording_name
     from model.inference.reconstruct import Reconstructor, output_times, plan_outputs
     from model.inference.stack_size import activity_of
 
-    rec = open_recording(path, ECD_HW) if path.is_dir() else open_recording(path)
+    # an AEDAT4 file says its sensor size; an ECD snippet (its folder or events.txt) not
+    rec = open_recording(path, None if path.suffix == ".aedat4" else ECD_SENSOR_HW)
     events = rec.read_all()
     model = Reconstructor.load(ckpt, rec.sensor_hw, device="cpu",
                                activity=activity_of(events))
@@ -70,7 +63,7 @@ def memory_use(ckpt: str, path: Path, outputs: int) -> dict:
     if len(diffs) not in MARKS:
         shown.append((kept, f"output {len(diffs)}"))
     last = np.stack(diffs[-10:])
-    return {"recording": path.name, "outputs": len(diffs),
+    return {"recording": recording_name(path), "outputs": len(diffs),
             "per_stack": model.stacks.events_per_stack, "first": float(diffs[0].mean()),
             "last10": float(last.mean()), "share": float((last > 0.02).mean()),
             "state": [sizes[k - 1] for k in MARKS if k <= len(sizes)] +
@@ -86,10 +79,19 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--figure", type=Path, help="PNG of the outputs at 1, 4, 10, 20, last")
     p.add_argument("--only", nargs="*", default=[], help="recording names to keep (substrings)")
     args = p.parse_args(argv)
-    found = [f for f in recordings(args.recordings)
-             if not args.only or any(o in f.name for o in args.only)]
+    from model.inference.real_benchmark import find_recordings, recording_name
+
+    found = []
+    for folder in args.recordings:
+        try:
+            real = find_recordings(folder)
+        except FileNotFoundError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
+        found += [f for f in real.scored + real.shown
+                  if not args.only or any(o in recording_name(f) for o in args.only)]
     if not found:
-        print(f"no recordings under {', '.join(map(str, args.recordings))}", file=sys.stderr)
+        print(f"no recordings named {', '.join(args.only)}", file=sys.stderr)
         return 2
     start = time.perf_counter()
     print("```\n" + shlex.join([".venv/bin/python", "bench/memory_use.py",

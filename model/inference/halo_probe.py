@@ -340,11 +340,7 @@ def raw_output(model, stacks: np.ndarray, history: np.ndarray | None = None) -> 
     x = torch.from_numpy(stack_to_input(stacks))[None].to(model.device)
     f = torch.from_numpy(flows)[None].to(model.device)
     central = model._central(x, f, None, history)
-    if net.config.memory:  # the state the previous call left, and this output's for the next
-        out, model.memory.state = net(x, central, f, memory=model.memory.state,
-                                      return_state=True)
-        return out[0, 0].float().cpu().numpy()
-    return net(x, central, f)[0, 0].float().cpu().numpy()
+    return model.forward(x, central, f, eager=True)[0, 0].float().cpu().numpy()
 
 
 def memory_anchors(anchor: int, per_stack: int, n_stacks: int = 3, before: int = 8

@@ -89,7 +89,7 @@ class BenchmarkResult:
     seconds: float
 
 
-def _name(path: Path) -> str:
+def recording_name(path: Path) -> str:
     """``davis346/street`` or ``ecd/shapes_rotation``."""
     if path.name == "events.txt":
         return f"ecd/{path.parent.name}"
@@ -114,7 +114,7 @@ def run_benchmark(ckpt: str | Path, folder: str | Path, out: str | Path,
         rec = open_recording(path, hw)
         model = pool.for_recording(rec)
         engines.add(model.engine_name)
-        seq = recording_outputs(rec, model, options, _name(path))
+        seq = recording_outputs(rec, model, options, recording_name(path))
         stats = exposure_stats(rec)
         sequences.append(seq)
         reports.append(RecordingReport(seq.name, bool(seq.lr_targets),

@@ -292,12 +292,7 @@ class Reconstructor:
         x = torch.from_numpy(stack_to_input(stacks))[None].to(self.device)
         f = torch.from_numpy(flows)[None].to(self.device)
         central = self._central(x, f, aps, history)
-        if self.net.config.memory:
-            out, self.memory.state = self.net(x, central, f, memory=self.memory.state,
-                                              return_state=True)
-        else:
-            out = (self.engine or self.net)(x, central, f)
-        out = out.clamp(0, 1)[0, 0].float().cpu().numpy()
+        out = self.forward(x, central, f).clamp(0, 1)[0, 0].float().cpu().numpy()
         if self.device.type == "cuda":
             torch.cuda.synchronize()
         timing["network"] = time.perf_counter() - start
@@ -306,6 +301,17 @@ class Reconstructor:
             out = fill_unobserved(out, stacks, self.fill)
             timing["fill"] = time.perf_counter() - start
         return out, timing
+
+    def forward(self, x: torch.Tensor, central: torch.Tensor, f: torch.Tensor,
+                eager: bool = False) -> torch.Tensor:
+        """The network's output before the clamp, on the engine (``eager``: the network
+        itself); a network with memory across outputs reads the state the previous call
+        left and leaves its own (:attr:`memory`)."""
+        if self.net.config.memory:
+            out, self.memory.state = self.net(x, central, f, memory=self.memory.state,
+                                              return_state=True)
+            return out
+        return (self.net if eager else self.engine or self.net)(x, central, f)
 
     def _central(self, x, f, aps, history=None):
         if aps is not None:
