@@ -81,8 +81,10 @@ class EvalOptions:
     ``max_frames`` per sequence; ``tc_weight``: weight of the warped previous output in the
     temporal post-process; ``stack_rule`` and ``events_per_stack`` choose the stacks
     (:mod:`model.inference.stack_size`); ``exposure_average``: average our outputs over
-    each APS frame's exposure window where the file stores it; ``fill``: what our outputs
-    get where no event fired (:mod:`model.inference.fill`)."""
+    each APS frame's exposure window where the file stores it; ``references``: also score
+    the information-free references and, with ``ceilings``, the whole-frame ceilings
+    (:mod:`model.inference.references`); ``fill``: what our outputs get where no event
+    fired (:mod:`model.inference.fill`)."""
 
     normalize: Literal["affine", "minmax", "evreal", "none", "observed"] = "affine"
     every: int = 1
@@ -95,6 +97,7 @@ class EvalOptions:
     events_per_stack: int | None = None
     exposure_average: bool = False
     references: bool = False
+    ceilings: bool = True
     fill: FillConfig = field(default_factory=FillConfig)
 
 
@@ -341,7 +344,8 @@ def _reference_rows(seq: SequenceOutputs, proto: str, targets: list[np.ndarray],
     """Rows of the information-free references (:mod:`model.inference.references`),
     compared as they are: under ``observed`` made at the region's mean level and scored
     inside it, otherwise at the frame's mean level and scored over the frame; then, over
-    whole frames only, the ceilings (the target where events fired, one grey elsewhere)."""
+    whole frames only, the ceilings (the target where events fired; outside, one grey, the
+    target's smoothest continuation, or the grey with random dots)."""
     rows = []
     for kind in REFERENCES:
         per_frame = []
@@ -355,14 +359,15 @@ def _reference_rows(seq: SequenceOutputs, proto: str, targets: list[np.ndarray],
                                                 lpips_net))
         rows.append({"sequence": seq.name, "protocol": proto, "method": kind,
                      "frames": len(per_frame), **_mean_metrics(per_frame)})
-    if options.normalize == "observed" or len(seq.support) != len(targets):
+    if (options.normalize == "observed" or not options.ceilings
+            or len(seq.support) != len(targets)):
         return rows
     for kind in CEILINGS:
         per_frame = []
-        for g, region in zip(targets, seq.support):
+        for i, (g, region) in enumerate(zip(targets, seq.support)):
             mask = upscale_mask(region, scale)
             if 0 < int(mask.sum()) < mask.size:
-                per_frame.append(frame_metrics(reference_image(kind, g, 0, mask), g, lpips_net))
+                per_frame.append(frame_metrics(reference_image(kind, g, i, mask), g, lpips_net))
         if per_frame:
             rows.append({"sequence": seq.name, "protocol": proto, "method": kind,
                          "frames": len(per_frame), **_mean_metrics(per_frame)})

@@ -155,6 +155,44 @@ def test_the_ceiling_is_the_target_where_seen_and_its_mean_elsewhere():
         reference_image("seen+flat", gt, 0, np.ones(gt.shape, bool))
 
 
+def test_the_harmonic_ceiling_continues_the_target_smoothly():
+    # a ramp along x seen at both ends is harmonic, with no flow across the top and bottom
+    # edges: its smoothest continuation is the ramp itself
+    ramp = np.tile(np.linspace(0.1, 0.9, 40, dtype=np.float32), (24, 1))
+    region = np.zeros(ramp.shape, bool)
+    region[:, :4] = region[:, -4:] = True
+    ceiling = reference_image("seen+harmonic", ramp, 0, region)
+    np.testing.assert_allclose(ceiling, ramp, atol=1e-3)
+    assert np.mean(reference_image("seen+flat", ramp, 0, region)[~region] - ramp[~region]) \
+        == pytest.approx(0, abs=1e-6)  # flat: the right mean, the wrong shape
+    # on any target: the target where seen, each unseen pixel the mean of its 4 neighbours
+    gt = np.random.default_rng(2).random((20, 30)).astype(np.float32)
+    region = np.zeros(gt.shape, bool)
+    region[5:12, 8:20] = True
+    ceiling = reference_image("seen+harmonic", gt, 0, region)
+    np.testing.assert_array_equal(ceiling[region], gt[region])
+    p = np.pad(ceiling, 1, mode="edge")
+    mean4 = (p[:-2, 1:-1] + p[2:, 1:-1] + p[1:-1, :-2] + p[1:-1, 2:]) / 4
+    np.testing.assert_allclose(ceiling[~region], mean4[~region], atol=1e-4)
+    with pytest.raises(ValueError, match="needs an observed region"):
+        reference_image("seen+harmonic", gt, 0)
+
+
+def test_the_salt_ceiling_adds_dots_only_where_nothing_was_seen():
+    gt = np.random.default_rng(3).uniform(0.2, 0.8, (300, 400)).astype(np.float32)
+    region = np.zeros(gt.shape, bool)
+    region[100:200, 50:350] = True
+    flat = reference_image("seen+flat", gt, 0, region)
+    salt = reference_image("seen+salt", gt, 5, region)
+    np.testing.assert_array_equal(salt[region], gt[region])
+    dots = salt != flat
+    assert not dots[region].any()
+    assert dots[~region].mean() == pytest.approx(SALT_FRACTION, rel=0.25)
+    np.testing.assert_allclose(np.abs(salt[dots] - flat[dots]), SALT_AMPLITUDE, atol=1e-6)
+    assert np.array_equal(salt, reference_image("seen+salt", gt, 5, region))
+    assert not np.array_equal(salt, reference_image("seen+salt", gt, 6, region))
+
+
 @pytest.mark.skipif(not (REAL / "street.aedat4").exists(),
                     reason="../shared/real_events is not there")
 def test_the_street_clips_observed_region_leaves_the_static_background_out():

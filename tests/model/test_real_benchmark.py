@@ -53,9 +53,10 @@ def test_the_benchmark_writes_one_table_and_one_figure(real_folder, tiny_checkpo
             assert f"| davis346/tiny | {norm} | {method} | 2 |" in table
     rows = list(csv.DictReader((out / "real_benchmark.csv").open()))
     assert {r["normalize"] for r in rows} == {"evreal", "affine", "observed"}
-    ceilings = [r for r in rows if r["method"] == "seen+flat"]
-    assert {r["normalize"] for r in ceilings} == {"evreal", "affine"}  # whole frames only
-    assert len(rows) == 3 * len(methods) + 2
+    for ceiling in ("seen+flat", "seen+harmonic", "seen+salt"):
+        rows_of = [r for r in rows if r["method"] == ceiling]
+        assert {r["normalize"] for r in rows_of} == {"evreal", "affine"}  # whole frames only
+    assert len(rows) == 3 * len(methods) + 2 * 3
     assert all(np.isfinite(float(r["psnr"])) for r in rows)
     observed = [r for r in rows if r["normalize"] == "observed"]
     assert all(0 < float(r["coverage"]) <= 1 and r["ewarp"] == "" for r in observed)
