@@ -1,4 +1,5 @@
-"""Command lines of the model: ``train``, ``reconstruct`` and ``evaluate``."""
+"""Command lines of the model: ``train``, ``reconstruct``, ``evaluate``, ``export-model`` and
+``convert-checkpoint``."""
 
 from __future__ import annotations
 
@@ -285,6 +286,32 @@ def export_main(argv: list[str] | None = None) -> int:
         print(f"export-model: error: {exc}", file=sys.stderr)
         return 2
     print(f"shipped {target} ({target.stat().st_size / 1e6:.2f} MB)")
+    return 0
+
+
+def convert_main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="convert-checkpoint", description="Rewrite a checkpoint "
+                                "that e2sr refuses to load (its pickle names code, not only "
+                                "tensors and plain containers) as plain data. Converting "
+                                "unpickles the file the unsafe way, running whatever it "
+                                "names: do it only for a file you trust.")
+    p.add_argument("source", help="the checkpoint to convert")
+    p.add_argument("out", help="the converted checkpoint (a new file; never overwritten)")
+    p.add_argument("--trust", action="store_true", help="required: you trust where SOURCE "
+                   "came from (converting runs what its pickle names)")
+    args = p.parse_args(argv)
+    if not args.trust:
+        print(f"convert-checkpoint: error: {args.source}: converting runs whatever the file's "
+              f"pickle names; pass --trust if you trust where it came from", file=sys.stderr)
+        return 2
+    try:
+        from model import checkpoint
+
+        target = checkpoint.convert_trusted(args.source, args.out)
+    except (FileNotFoundError, FileExistsError, ValueError) as exc:
+        print(f"convert-checkpoint: error: {exc}", file=sys.stderr)
+        return 2
+    print(f"wrote {target}: loads as data only")
     return 0
 
 

@@ -412,8 +412,8 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
     (:mod:`model.inference.engines`)."""
     options = options or EvalOptions()
     out = Path(out)
+    pool = ModelPool(ckpt, options, first_pass, engine)  # a refused checkpoint writes nothing
     out.mkdir(parents=True, exist_ok=True)
-    pool = ModelPool(ckpt, options, first_pass, engine)
     cfg = pool.config
     lpips_net = LPIPS()
     sequences: list[SequenceOutputs] = []
