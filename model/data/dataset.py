@@ -23,6 +23,7 @@ import torch
 from torch.utils.data import Dataset
 
 from datagen.shard import ShardReader
+from esim_lite.core.scales import hr_camera
 from esim_lite.core.stacking import (
     StackConfig,
     stack_fit_warnings,
@@ -30,7 +31,6 @@ from esim_lite.core.stacking import (
     stack_to_input,
     stacks_around,
 )
-from esim_lite.geometry.camera import hr_camera
 from esim_lite.geometry.motion import planar_flow
 from esim_lite.geometry.pose import Pose
 from model.data.classical_flow import stack_flows

@@ -50,7 +50,7 @@ from datagen.recording import Recording, open_recording
 from datagen.shard import ShardReader, find_shards
 from esim_lite.core.atomic import write_text
 from esim_lite.core.figures import contact_sheet, event_image, gray_to_rgb, write_png
-from esim_lite.geometry.camera import hr_camera
+from esim_lite.core.scales import hr_camera
 from model import checkpoint
 from model.archs.e2sri_arch import mode_of
 from model.data.dataset import index_samples

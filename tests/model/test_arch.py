@@ -179,7 +179,7 @@ def test_folding_space_to_depth_handles_any_size(scale):
 
 
 def test_the_network_has_a_projection_for_every_scale_datagen_renders():
-    from esim_lite.geometry.camera import SCALES
+    from esim_lite.core.scales import SCALES
     from model.archs.blocks import PROJECTION
 
     assert set(PROJECTION) == set(SCALES)
