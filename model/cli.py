@@ -165,7 +165,7 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
         from model import checkpoint
         from model.inference.pretrained import resolve
         from model.inference.reconstruct import Reconstructor, plan_outputs, reconstruct
-        from model.inference.stack_size import activity_for_rule
+        from model.stack_size import activity_for_rule
 
         _check_out_folder(args.out)
         ckpt = resolve(args.checkpoint, args.scale)

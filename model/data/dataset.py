@@ -37,7 +37,7 @@ from model.data.classical_flow import stack_flows
 from model.data.config import DataConfig
 from model.data.history import EventAge, history_input
 from model.data.input_cache import InputCache
-from model.inference.stack_size import ACTIVE_WINDOW_S, activity_of, choose_stack
+from model.stack_size import ACTIVE_WINDOW_S, activity_of, choose_stack
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +61,7 @@ class SampleRef:
 def sequence_stacks(reader: ShardReader, sequence: str, data: DataConfig) -> StackConfig:
     """The SBN settings of one sequence's samples under ``data.stack_rule``: ``fixed``, the
     configured ones; ``active``, reconstruction's active-pixel rule applied to the
-    sequence's first second (:func:`model.inference.stack_size.choose_stack`), the
+    sequence's first second (:func:`model.stack_size.choose_stack`), the
     sequence's sensor counting as the trained one."""
     if data.stack_rule == "fixed":
         return data.stacks

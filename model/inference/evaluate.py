@@ -22,7 +22,7 @@ events fired with spatial support (:mod:`model.inference.observed`), with the af
 made inside it: what event-only methods can know, apart from what no event saw.
 
 Scoring real recordings: events per stack are chosen per recording
-(:mod:`model.inference.stack_size`; the active-pixel rule by default for real files, the
+(:mod:`model.stack_size`; the active-pixel rule by default for real files, the
 area rule for our shards); with ``exposure_average`` our outputs inside each APS frame's
 exposure window are averaged before scoring (:mod:`model.inference.exposure`; the
 baselines stay at the frame's timestamp).
@@ -66,10 +66,10 @@ from model.inference.observed import (
 )
 from model.inference.reconstruct import OutputPlan, Reconstructor, output_times
 from model.inference.references import CEILINGS, REFERENCES, reference_image
-from model.inference.stack_size import Rule, StackChoice, activity_for_rule
 from model.inference.temporal import reference_motion, temporally_consistent, warp_error
 from model.losses.lpips import LPIPS
 from model.metrics.image import mse, psnr, ssim
+from model.stack_size import Rule, StackChoice, activity_for_rule
 
 log = logging.getLogger(__name__)
 BASELINES = ("hf", "direct", "complementary")
@@ -80,7 +80,7 @@ class EvalOptions:
     """``normalize``: see the module doc; ``every``: evaluate every k-th eligible frame;
     ``max_frames`` per sequence; ``tc_weight``: weight of the warped previous output in the
     temporal post-process; ``stack_rule`` and ``events_per_stack`` choose the stacks
-    (:mod:`model.inference.stack_size`); ``exposure_average``: average our outputs over
+    (:mod:`model.stack_size`); ``exposure_average``: average our outputs over
     each APS frame's exposure window where the file stores it; ``references``: also score
     the information-free references and, with ``ceilings``, the whole-frame ceilings
     (:mod:`model.inference.references`); ``fill``: what our outputs get where no event

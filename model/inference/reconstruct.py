@@ -7,7 +7,7 @@ stack is computed, and the network runs on the whole sensor (it is fully convolu
 so any sensor size works). Events stream through a sliding window: memory does not grow
 with the length of the recording.
 
-The number of events per stack (:mod:`model.inference.stack_size`): given, else scaled from
+The number of events per stack (:mod:`model.stack_size`): given, else scaled from
 what the model was trained with by the recording's active pixels (real recordings) or by
 the sensor area (the paper: ~3,000 per stack at 128x128 becomes ~7,900 at 240x180).
 """
@@ -37,8 +37,8 @@ from model.data.classical_flow import stack_flows
 from model.data.history import EventAge, history_input
 from model.inference.engines import Forward, load_engine
 from model.inference.fill import FillConfig, fill_unobserved
-from model.inference.stack_size import Activity, StackChoice, choose_stack
 from model.inference.temporal import consistency_step
+from model.stack_size import Activity, StackChoice, choose_stack
 
 log = logging.getLogger(__name__)
 Mode = Literal["main", "complementary", "duo-pass"]
@@ -185,7 +185,7 @@ class Reconstructor:
         ``engine``: ``torch``, ``onnxruntime``, ``openvino`` or ``auto``
         (:func:`model.inference.engines.choose`). Events per stack: ``events_per_stack``,
         else by the recording's ``activity`` (active-pixel rule), else by sensor area
-        (:func:`model.inference.stack_size.choose_stack`)."""
+        (:func:`model.stack_size.choose_stack`)."""
         dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         net = checkpoint.model_from(state, dev, ckpt)
         if net.config.central != CENTRAL_OF_MODE[mode]:
@@ -214,7 +214,7 @@ class Reconstructor:
     def with_stacks(self, given: int | None = None, activity: Activity | None = None
                     ) -> Reconstructor:
         """The same network (and engine) with events per stack chosen afresh from the
-        model's trained ones (:func:`model.inference.stack_size.choose_stack`): for another
+        model's trained ones (:func:`model.stack_size.choose_stack`): for another
         recording of the same sensor size."""
         base = self.stack_choice
         if base is None:
