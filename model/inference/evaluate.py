@@ -64,6 +64,7 @@ from model.inference.observed import (
     support_mask,
     upscale_mask,
 )
+from model.inference.quantize import CalibrationSource
 from model.inference.reconstruct import OutputPlan, Reconstructor, output_times
 from model.inference.references import CEILINGS, REFERENCES, reference_image
 from model.inference.temporal import reference_motion, temporally_consistent, warp_error
@@ -154,12 +155,14 @@ class SequenceOutputs:
 
 class ModelPool:
     """A checkpoint read once; its network (and engine) prepared once per sensor size, with
-    the events per stack chosen for each recording (``options.stack_rule``)."""
+    the events per stack chosen for each recording (``options.stack_rule``); ``calibrate``:
+    for an ``openvino-int8`` engine (:func:`model.inference.engines.load_engine`)."""
 
     def __init__(self, ckpt: str | Path, options: EvalOptions, first_pass: str | None = None,
-                 engine: str = "torch") -> None:
+                 engine: str = "torch", calibrate: CalibrationSource | None = None) -> None:
         self.ckpt, self.options, self.first_pass, self.engine = str(ckpt), options, \
             first_pass, engine
+        self.calibrate = calibrate
         self.state = checkpoint.load(ckpt)
         self.config = checkpoint.config_of(self.state, self.ckpt)
         self._by_hw: dict[tuple[int, int], Reconstructor] = {}
@@ -169,7 +172,7 @@ class ModelPool:
         if hw not in self._by_hw:
             self._by_hw[hw] = Reconstructor.from_state(
                 self.state, self.ckpt, hw, mode_of(self.config.model), self.first_pass,
-                engine=self.engine)
+                engine=self.engine, calibrate=self.calibrate)
         given = self.options.events_per_stack
         model = replace(self._by_hw[hw].with_stacks(given, activity_for_rule(
             rec, self.options.stack_rule, self.config.data.stack_rule, given)),
@@ -401,7 +404,8 @@ def _observed(seq: SequenceOutputs, preds: list[np.ndarray], targets: list[np.nd
 def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
              recordings: list[str] | None = None, options: EvalOptions | None = None,
              first_pass: str | None = None, split: Literal["val", "all"] = "val",
-             sensor_hw: tuple[int, int] | None = None, engine: str = "torch") -> list[dict]:
+             sensor_hw: tuple[int, int] | None = None, engine: str = "torch",
+             calibrate: CalibrationSource | None = None) -> list[dict]:
     """Evaluate on shards and/or real recordings with APS frames; writes ``metrics.csv``,
     ``metrics.md`` and ``figure.png`` into ``out``; returns the rows.
 
@@ -409,10 +413,11 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
     split (its validation set), ``all`` every sequence (a separate test set). Recordings
     without APS frames (``sensor_hw`` for formats that do not store it) are not scored:
     they appear in the figure as events | HF | ours. ``engine`` runs the network
-    (:mod:`model.inference.engines`)."""
+    (:mod:`model.inference.engines`; ``calibrate`` for ``openvino-int8``)."""
     options = options or EvalOptions()
     out = Path(out)
-    pool = ModelPool(ckpt, options, first_pass, engine)  # a refused checkpoint writes nothing
+    # a refused checkpoint writes nothing
+    pool = ModelPool(ckpt, options, first_pass, engine, calibrate)
     out.mkdir(parents=True, exist_ok=True)
     cfg = pool.config
     lpips_net = LPIPS()
