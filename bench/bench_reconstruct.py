@@ -95,7 +95,7 @@ def engine_frames(models: list[Reconstructor], events: Events, frames: int, roun
                 start = time.perf_counter()
                 given = model.stacks_at(window, t)
                 stacking = time.perf_counter() - start
-                image, timing = model.run(given.stacks, None, given.history)
+                image, timing = model.run(given.stacks, None)
                 if k:  # the first output warms up caches and allocators
                     for key, v in {"stacking": stacking, **timing}.items():
                         spent[key].append(v)

@@ -54,15 +54,14 @@ def simulated_inputs(net: E2SRI, calibration: quantize.Calibration | None = None
         pick = np.unique(np.linspace(0, len(refs) - 1, min(calibration.samples, len(refs)))
                          .round().astype(int))
         dataset = ShardSamples([refs[i] for i in pick], data, cfg.n_stacks, cfg.scale,
-                               train=False, history=cfg.history)
+                               train=False)
         items = [dataset[i] for i in range(len(dataset))]
     # a Duo-Pass model is calibrated on the LR frame in its first pass's place (same range)
     as_net = cfg if cfg.central != "first_pass" else replace(cfg, central="aps")
     out = []
     for item in items:
         batch = {k: v[None] for k, v in item.items()}
-        central = central_input(as_net, batch["stacks"], batch["flows"], batch["lr"], None,
-                                batch.get("history"))
+        central = central_input(as_net, batch["stacks"], batch["flows"], batch["lr"], None)
         out.append({"stacks": batch["stacks"].numpy(),
                     "central": np.ascontiguousarray(central.numpy()),
                     "flows": batch["flows"].numpy()})

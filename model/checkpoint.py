@@ -22,11 +22,12 @@ from pathlib import Path
 from typing import Any
 
 import torch
+import yaml
 
 from esim_lite.core.atomic import atomic_path
 from esim_lite.core.dataconf import from_mapping, load_yaml_text, to_mapping
 from model.archs.e2sri_arch import E2SRI, NetConfig
-from model.config import TrainConfig
+from model.config import TrainConfig, without_retired
 
 TRAINED_SENSOR_HW = (128, 128)
 """(H, W) of the paper's simulated event camera: what a checkpoint that does not record its
@@ -177,13 +178,30 @@ def load(path: str | Path) -> dict[str, Any]:
 
 
 def config_of(ckpt: dict[str, Any], source: str = "checkpoint") -> TrainConfig:
-    return load_yaml_text(TrainConfig, ckpt["config"], source=source)
+    """The resolved training config a checkpoint stores (settings of removed experiments
+    at their neutral values dropped: :func:`model.config.without_retired`)."""
+    text = ckpt["config"]
+    try:
+        data = yaml.safe_load(text) if isinstance(text, str) else None
+    except yaml.YAMLError:
+        data = None
+    if not isinstance(data, dict):
+        return load_yaml_text(TrainConfig, text, source=source)  # its own clear error
+    return from_mapping(TrainConfig, without_retired(data, source), source=source)
+
+
+def net_config(ckpt: dict[str, Any], source: str = "checkpoint") -> NetConfig:
+    """The network's constructor arguments a checkpoint stores."""
+    net = ckpt.get("net")
+    if not isinstance(net, dict):
+        raise ValueError(f"{source}: not a network checkpoint (no network arguments)")
+    return from_mapping(NetConfig, without_retired(net, source, "model."), source=source)
 
 
 def model_from(ckpt: dict[str, Any], device: str | torch.device = "cpu",
                source: str = "checkpoint") -> E2SRI:
     """The network stored in a loaded checkpoint, in eval mode."""
-    net = E2SRI(from_mapping(NetConfig, ckpt["net"], source=source))
+    net = E2SRI(net_config(ckpt, source))
     try:
         net.load_state_dict(ckpt["model"])
     except (RuntimeError, TypeError, AttributeError) as exc:

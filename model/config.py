@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 from model.archs.e2sri_arch import NetConfig
 from model.data.config import DataConfig
@@ -19,23 +20,15 @@ class LossConfig:
             (model/losses/unfired.py; 0 = off, the paper's loss): each event-free region
             may take one level, and levels change only where events fired.
         unfired_dilate: LR pixels the fired region is widened by before that term.
-        fill_unseen: score L1 and LPIPS against a target whose pixels outside the fired
-            region are a smooth fill of those inside it (model/losses/unseen.py; False =
-            the true image everywhere, the paper's loss).
-        fill_dilate: LR pixels the fired region is widened by before the fill.
     """
 
     lpips_weight: float = 0.01
     unfired_tv: float = 0.0
     unfired_dilate: int = 1
-    fill_unseen: bool = False
-    fill_dilate: int = 2
 
     def __post_init__(self) -> None:
-        if self.lpips_weight < 0 or self.unfired_tv < 0 or self.unfired_dilate < 0 \
-                or self.fill_dilate < 0:
-            raise ValueError("loss weights, loss.unfired_dilate and loss.fill_dilate must be "
-                             ">= 0")
+        if self.lpips_weight < 0 or self.unfired_tv < 0 or self.unfired_dilate < 0:
+            raise ValueError("loss weights and loss.unfired_dilate must be >= 0")
 
 
 @dataclass(frozen=True)
@@ -124,8 +117,47 @@ class TrainConfig:
             raise ValueError(f"model.stack_channels ({self.model.stack_channels}) must equal "
                              f"data.stacks.channels ({self.data.stacks.channels}): the "
                              f"network takes the stacks' channels as its input")
-        if self.model.memory != (self.data.clip > 1):
-            raise ValueError(f"model.memory ({self.model.memory}) and data.clip "
-                             f"({self.data.clip}) go together: a network that carries its "
-                             f"state across outputs trains on clips of 2 or more consecutive "
-                             f"outputs, and only such a network needs them")
+
+
+RETIRED_AT = "9e72ba2"
+"""The last commit holding the experiments' switches below (docs/notes/experiments.md)."""
+
+ANY = object()
+RETIRED: dict[str, Any] = {
+    "model.fold": 1, "model.context_far": "cells", "model.context_global": False,
+    "model.context_support": False, "model.context_gate": 0.0, "model.history": [],
+    "model.memory": False, "data.clip": 1, "data.clip_stride": 1, "loss.fill_unseen": False,
+    "loss.fill_dilate": ANY}
+"""Settings of experiments that did not ship, with the value at which each did nothing.
+Checkpoints written before they were removed store them; a stored value that did nothing is
+dropped when the checkpoint is read, any other refused (that network or loss is gone)."""
+
+
+def _neutral(value: Any, neutral: Any) -> bool:
+    if neutral is ANY:
+        return True
+    if isinstance(neutral, list):
+        return isinstance(value, (list, tuple)) and list(value) == neutral
+    return value == neutral
+
+
+def without_retired(data: Mapping[str, Any], source: str, prefix: str = "") -> dict[str, Any]:
+    """``data`` (a training config mapping, or with ``prefix`` one of its sections, e.g.
+    ``"model."`` for a checkpoint's network arguments) without the :data:`RETIRED` settings.
+
+    Raises:
+        ValueError: a retired setting holds a value other than the one at which it did
+            nothing (the message names it and the commit that still has its code).
+    """
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        dotted = prefix + str(key)
+        if isinstance(value, Mapping) and not prefix:
+            out[key] = without_retired(value, source, dotted + ".")
+        elif dotted not in RETIRED:
+            out[key] = value
+        elif not _neutral(value, RETIRED[dotted]):
+            raise ValueError(f"{source}: {dotted} = {value!r}: an experiment's setting that "
+                             f"e2sr no longer has (docs/notes/experiments.md; its code is at "
+                             f"commit {RETIRED_AT})")
+    return out

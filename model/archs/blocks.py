@@ -97,179 +97,35 @@ def anti_grid_taps(scale: int) -> torch.Tensor:
 class ContextBranch(nn.Module):
     """Coarse context added to LR features: ``x + out(cat_f up(path_f(avgpool_f(x))))``.
 
-    The shipped x2 network's convolutions see about +-18 LR pixels around each output
-    pixel (measured: the farthest input pixel with a non-zero gradient), so a flat,
-    event-free region wider than that is filled with a constant prior rather than the level
-    its bounding edges imply (the halos of docs/notes/halos.md). Each path averages the
-    features over ``f x f`` cells (:func:`cell_means`), runs two 3x3 convolutions there
-    (each seeing ``3 f`` pixels), and is brought back by bilinear interpolation; a 1x1
-    convolution mixes the paths into a residual. With factors (4, 16) an output pixel sees
-    about +-63 LR pixels (measured on the x2 CPU variant) for little compute.
-    That last convolution starts at zero, so a network warm-started from one without the
-    branch computes exactly what it did until training moves it.
-
-    ``far="dilated"`` reaches as far with a finer grain: the far path runs on the 4x4
-    cells (not 16x16) through a 3x3 convolution and three more dilated by 2, 4 and 8 (+-15
-    cells, +-60 LR pixels), so what it adds can change every 4 LR pixels instead of being a
-    bilinear blend of 16-pixel cells, which spreads anything it carries over +-16 pixels
-    (the cloud around moving objects on a static background that
-    ``bench/context_ablation.py`` traced to the 16x16 path). The near path is the 4x4 one.
-    Trained (run L, docs/models.md), it learned the same cloud: the grain was not the cause.
-
-    ``far="none"`` keeps the near (4x4) path alone: what ``bench/context_ablation.py``
-    calls ``no-far``, as a network of its own, for a network that carries its state across
-    outputs (``model.memory``) and may fill what its edges swept from that instead.
-
-    ``global_path`` adds a path that sees the whole frame: the mean over all pixels of a 1x1
-    projection of the features (after a ReLU), concatenated to every pixel's features, a
-    1x1 convolution and a ReLU, then its own zero-initialised 1x1 residual (``g_out``), so a
-    branch without it warm-starts one with it exactly. The cells reach +-63 LR pixels; a
-    never-fired background wider than that was filled with the level its nearest edges imply
-    near them and a prior beyond (the cloud of run M, docs/models.md): with the frame mean
-    every pixel can take the level the frame's edges imply.
-
-    ``support`` adds a path that averages only where events fired (normalised convolution,
-    Knutsson and Westin 1993, filled coarse to fine as push-pull does): a 1x1 projection of
-    the features (after a ReLU) is averaged over the fired pixels of each ``f x f`` cell
-    (``f`` the branch's largest factor) and of the whole frame (:func:`support_means`);
-    a cell where few pixels fired takes the frame's fired mean in proportion
-    (:func:`push_pull`). That map, brought back bilinearly, and the fired shares of the cell
-    and of the frame are concatenated to every pixel's features, mixed by a 1x1 convolution
-    and a ReLU, and added through their own zero-initialised 1x1 residual (``s_out``).
-    Every other path averages all pixels, fired or not, so over a static background that
-    never fired the cells far from a moving object hold nothing, and the network fills
-    them with a constant prior while the cells beside the object carry its level (the cloud
-    of runs K to N, docs/models.md); this path gives the far cells what the fired pixels
-    say, however few and wherever they are. ``forward`` then needs the support map.
+    The CPU variant's convolutions see about +-18 LR pixels around each output pixel
+    (measured: the farthest input pixel with a non-zero gradient), so a flat, event-free
+    region wider than that is filled with a constant prior rather than the level its
+    bounding edges imply. Each path averages the features over ``f x f`` cells
+    (:func:`cell_means`), runs two 3x3 convolutions there (each seeing ``3 f`` pixels), and
+    is brought back by bilinear interpolation; a 1x1 convolution mixes the paths into a
+    residual. With factors (4, 16) an output pixel sees about +-63 LR pixels for little
+    compute. That last convolution starts at zero, so a network warm-started from one
+    without the branch computes exactly what it did until training moves it.
+    (Variants tried and not shipped, a dilated far path, a whole-frame path, a path over
+    the fired pixels and a gate from the event history, are in docs/notes/experiments.md.)
     """
 
-    def __init__(self, channels: int, width: int, factors: tuple[int, ...] = (4, 16),
-                 far: str = "cells", global_path: bool = False, support: bool = False) -> None:
+    def __init__(self, channels: int, width: int, factors: tuple[int, ...] = (4, 16)) -> None:
         super().__init__()
-        if far not in ("cells", "dilated", "none"):
-            raise ValueError(f"far must be cells, dilated or none, got {far!r}")
-        self.far_kind = far
-        if far == "none":  # the near path alone (a memory across outputs may carry the rest)
-            factors = tuple(factors[:1])
-        if far == "dilated":
-            factors = (FAR_CELL,)
-            self.far = nn.Sequential(conv(channels, width),
-                                     *(conv(width, width, p=d, d=d) for d in FAR_DILATIONS))
         self.factors = tuple(factors)
         self.paths = nn.ModuleList(nn.Sequential(conv(channels, width), conv(width, width))
                                    for _ in self.factors)
-        n_paths = len(self.factors) + (far == "dilated")
-        self.out = nn.Conv2d(width * n_paths, channels, 1)
+        self.out = nn.Conv2d(width * len(self.factors), channels, 1)
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
-        self.global_path = global_path
-        if global_path:
-            self.g_in = nn.Conv2d(channels, width, 1)
-            self.g_mix = nn.Conv2d(channels + width, width, 1)
-            self.g_out = nn.Conv2d(width, channels, 1)
-            nn.init.zeros_(self.g_out.weight)
-            nn.init.zeros_(self.g_out.bias)
-        self.support = support
-        if support:
-            self.s_in = nn.Conv2d(channels, width, 1)
-            self.s_mix = nn.Conv2d(channels + width + 2, width, 1)
-            self.s_out = nn.Conv2d(width, channels, 1)
-            nn.init.zeros_(self.s_out.weight)
-            nn.init.zeros_(self.s_out.bias)
 
-    def forward(self, x: torch.Tensor, support: torch.Tensor | None = None,
-                gate: torch.Tensor | None = None) -> torch.Tensor:
-        """``x``: ``(B, C, H, W)`` features; ``support``: ``(B, 1, H, W)``, 1 where an event
-        fired in any stack, 0 elsewhere (needed, and read, only by the support path);
-        ``gate``: ``(B, 1, H, W)`` in [0, 1], the weight of the far path's share of the
-        residual at each pixel (:func:`history_gate`; None: 1 everywhere)."""
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``x``: ``(B, C, H, W)`` features; returns the same shape."""
         h, w = x.shape[-2:]
         parts = [F.interpolate(path(cell_means(x, f)), scale_factor=f, mode="bilinear",
                                align_corners=False)[..., :h, :w]
                  for f, path in zip(self.factors, self.paths)]
-        if self.far_kind == "dilated":
-            parts.append(F.interpolate(self.far(cell_means(x, FAR_CELL)), scale_factor=FAR_CELL,
-                                       mode="bilinear", align_corners=False)[..., :h, :w])
-        if gate is None:
-            y = x + self.out(torch.cat(parts, dim=1))
-        else:  # the far path's columns of the residual come last (as context_ablation reads)
-            width = parts[-1].shape[1]
-            wt = self.out.weight
-            near = F.conv2d(torch.cat(parts[:-1], dim=1), wt[:, :-width], self.out.bias)
-            y = x + near + gate * F.conv2d(parts[-1], wt[:, -width:])
-        if self.global_path:
-            g = F.relu(self.g_in(x)).mean(dim=(-2, -1), keepdim=True)
-            z = F.relu(self.g_mix(torch.cat([x, g.expand(-1, -1, h, w)], dim=1)))
-            y = y + self.g_out(z)
-        if self.support:
-            if support is None or support.shape != (x.shape[0], 1, h, w):
-                raise ValueError(f"the support path needs a (B, 1, {h}, {w}) support map, got "
-                                 f"{None if support is None else tuple(support.shape)}")
-            f = max(self.factors)
-            p = F.relu(self.s_in(x))
-            cells, share, frame, frame_share = support_means(p, support, f)
-            filled = F.interpolate(push_pull(cells, share, frame), scale_factor=f,
-                                   mode="bilinear", align_corners=False)[..., :h, :w]
-            share = F.interpolate(share, scale_factor=f, mode="bilinear",
-                                  align_corners=False)[..., :h, :w]
-            z = F.relu(self.s_mix(torch.cat([x, filled, share,
-                                             frame_share.expand(-1, -1, h, w)], dim=1)))
-            y = y + self.s_out(z)
-        return y
-
-
-GATE_CELL = 4
-"""The grain of :func:`history_gate`: the near path's cells, so an isolated pixel that fired
-(a noise event) opens the far path over its cell at 1/16 of its weight, not fully."""
-
-
-def history_gate(recent: torch.Tensor) -> torch.Tensor:
-    """The far path's weight per pixel from the event history: ``recent`` is one history
-    channel, ``(B, 1, H, W)``, ``exp(-age / tau)`` (1 for a pixel that fired last, 0 for one
-    that never fired; :mod:`model.data.history`), averaged over :data:`GATE_CELL` cells and
-    brought back bilinearly. A region swept by events within about ``tau`` stacks (the
-    inside of an object whose edges crossed it) keeps the far path's fill; a background
-    that has not fired for many times ``tau`` (a static camera's street) gets none of it."""
-    h, w = recent.shape[-2:]
-    return F.interpolate(cell_means(recent, GATE_CELL), scale_factor=GATE_CELL,
-                         mode="bilinear", align_corners=False)[..., :h, :w].clamp(0, 1)
-
-
-PUSH_PULL_FULL = 1 / 16
-"""The share of fired pixels at which a cell's own fired mean is trusted fully in
-:func:`push_pull` (16 of a 16x16 cell's 256 pixels); below it the frame's fills in."""
-
-
-def support_means(p: torch.Tensor, support: torch.Tensor, f: int
-                  ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Means of ``p`` over the fired pixels (``support`` 1) of each ``f x f`` cell and of the
-    whole frame, with the fired shares: ``(cell means, cell shares, frame mean, frame
-    share)``, the cells ``(B, C, ceil(H/f), ceil(W/f))``, the frame ``(B, C, 1, 1)``. A
-    cell or frame where nothing fired has mean 0. Pixels that did not fire do not count,
-    whatever ``p`` holds there."""
-    share = cell_means(support, f)
-    cells = cell_means(p * support, f) / share.clamp_min(SUPPORT_EPS)
-    frame_share = support.mean(dim=(-2, -1), keepdim=True)
-    frame = (p * support).mean(dim=(-2, -1), keepdim=True) / frame_share.clamp_min(SUPPORT_EPS)
-    return cells, share, frame, frame_share
-
-
-SUPPORT_EPS = 1e-6
-"""Floor of a fired share before dividing (where nothing fired the sum is 0 too)."""
-
-
-def push_pull(cells: torch.Tensor, share: torch.Tensor, frame: torch.Tensor
-              ) -> torch.Tensor:
-    """Each cell's fired mean where enough fired, the frame's where none did, and in
-    proportion between: weight ``min(1, share / PUSH_PULL_FULL)`` on the cell's own."""
-    trust = (share / PUSH_PULL_FULL).clamp(max=1.0)
-    return trust * cells + (1.0 - trust) * frame
-
-
-FAR_CELL = 4
-"""Cell size of the dilated far path (and of the near path beside it)."""
-FAR_DILATIONS = (2, 4, 8)
-"""Dilations of the far path's convolutions after its first (undilated) one."""
+        return x + self.out(torch.cat(parts, dim=1))
 
 
 def cell_means(x: torch.Tensor, f: int) -> torch.Tensor:

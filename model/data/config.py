@@ -26,21 +26,13 @@ class DataConfig:
         flips: random horizontal/vertical flips in training.
         cache: precompute SBN stacks, flow and frames once into ``<data>/cache/`` and train
             from memory maps (model/data/input_cache.py); flow is then computed on whole frames.
-        stack_rule: SBN events per stack per sequence. ``fixed`` (the paper, and every model
-            before run E, docs/models.md): ``stacks.events_per_stack`` everywhere.
+        stack_rule: SBN events per stack per sequence. ``fixed`` (the paper, and the first
+            shipped models): ``stacks.events_per_stack`` everywhere.
             ``active``: the number reconstruction's active-pixel rule gives a recording of
             the sequence's activity (model/stack_size.py: ``stacks`` per fully
             active sensor, times the share of pixels firing >= 2 events in the first
             second), so a static camera watching small objects trains on the short, sparse
             stacks a real one is given, not on stacks that span seconds of sensor noise.
-        clip: consecutive outputs per training sample (1: single outputs). A network with
-            memory across outputs (``model.memory``) trains on clips of ``clip`` consecutive
-            frames of one sequence, cropped and flipped alike, its state carried from each
-            to the next; each frame belongs to at most one clip.
-        clip_stride: frames between a clip's outputs (1: consecutive frames). Shards hold a
-            frame every ``frames.every_events`` events (3,000 in the training recipes), a
-            third of a 9,000-event stack; ``reconstruct`` outputs once a stack, so a stride of
-            3 trains the memory on the spacing it is run at.
     """
 
     stacks: StackConfig = field(default_factory=StackConfig)
@@ -50,8 +42,6 @@ class DataConfig:
     flips: bool = True
     cache: bool = False
     stack_rule: Literal["fixed", "active"] = "fixed"
-    clip: int = 1
-    clip_stride: int = 1
 
     def __post_init__(self) -> None:
         if self.stack_rule not in ("fixed", "active"):
@@ -60,8 +50,5 @@ class DataConfig:
             raise ValueError("data.stack_rule: active needs SBN stacks without overlap")
         if self.crop is not None and self.crop < 16:
             raise ValueError("crop must be >= 16 (or null for whole frames)")
-        if self.clip < 1 or self.clip_stride < 1:
-            raise ValueError(f"data.clip and data.clip_stride must be >= 1, got {self.clip} "
-                             f"and {self.clip_stride}")
         if not 0 <= self.val_fraction < 1:
             raise ValueError("val_fraction must be in [0, 1)")

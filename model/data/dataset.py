@@ -35,7 +35,6 @@ from esim_lite.geometry.motion import planar_flow
 from esim_lite.geometry.pose import Pose
 from model.data.classical_flow import stack_flows
 from model.data.config import DataConfig
-from model.data.history import EventAge, history_input
 from model.data.input_cache import InputCache
 from model.stack_size import ACTIVE_WINDOW_S, activity_of, choose_stack
 
@@ -140,18 +139,12 @@ _FLIP_Y = np.array([1.0, -1.0], np.float32)[:, None, None]  # negate dy on an up
 class ShardSamples(Dataset):
     """``dataset[i]`` -> dict of tensors: ``stacks`` (n, c, h, w) in [-1, 1], ``flows``
     (n, 2, h, w) pixels, ``lr`` (1, h, w) and ``hr`` (1, s h, s w) linear intensity,
-    ``index``, and with ``history`` (the model's time constants, in stacks) ``history``
-    (k, h, w) (:mod:`model.data.history`). Shard files are opened lazily, once per
-    process."""
+    and ``index``. Shard files are opened lazily, once per process."""
 
     def __init__(self, refs: list[SampleRef], data: DataConfig, n_stacks: int, scale: int,
-                 train: bool, seed: int = 0, cache: InputCache | None = None,
-                 history: tuple[float, ...] = ()) -> None:
+                 train: bool, seed: int = 0, cache: InputCache | None = None) -> None:
         self.refs, self.data, self.n_stacks, self.scale = refs, data, n_stacks, scale
         self.train, self.seed, self.epoch, self.cache = train, seed, 0, cache
-        self.history = tuple(history)
-        if self.history and data.stacks.method != "sbn":
-            raise ValueError("the event-history input needs SBN stacks (data.stacks.method)")
         self._readers: dict[str, ShardReader] = {}
         self._pid = None
 
@@ -199,16 +192,6 @@ class ShardSamples(Dataset):
         flows[mid] = 0.0  # by definition (the projection round trip leaves ~1e-14)
         return flows
 
-    def _age(self, ref: SampleRef) -> np.ndarray | None:
-        """float32[H, W]: the sample's event age at its anchor (None without history)."""
-        if not self.history:
-            return None
-        if self.cache is not None:
-            return self.cache.age(ref)
-        reader = self._reader(ref.path)
-        events = reader.events(ref.sequence, 0, ref.anchor)
-        return EventAge(events.sensor_hw).age_at(events, 0, ref.anchor)
-
     def _inputs(self, ref: SampleRef):
         """(stacks uint8[n, c, H, W], whole-frame flows float32[n, 2, H, W] or None to
         compute them after cropping, lr, hr)."""
@@ -224,13 +207,9 @@ class ShardSamples(Dataset):
         return stacks, given, lr, hr
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
-        return self._sample(self.refs[i], i)
-
-    def _sample(self, ref: SampleRef, i: int) -> dict[str, torch.Tensor]:
-        """``ref``'s tensors, cropped and flipped as sample ``i`` of this epoch is."""
-        cfg, s = self.data, self.scale
+        """Sample ``i``'s tensors, cropped and flipped as this epoch draws them."""
+        ref, cfg, s = self.refs[i], self.data, self.scale
         stacks, given, lr, hr = self._inputs(ref)
-        age = self._age(ref)
         if self.train:
             rng = np.random.default_rng([self.seed, self.epoch, i])
             if cfg.crop is not None:
@@ -243,15 +222,12 @@ class ShardSamples(Dataset):
                 stacks, lr = stacks[(..., *win)], lr[win]
                 hr = hr[s * y0:s * (y0 + cfg.crop), s * x0:s * (x0 + cfg.crop)]
                 given = None if given is None else given[(..., *win)]
-                age = None if age is None else age[win]
             if cfg.flips and rng.random() < 0.5:
                 stacks, lr, hr = stacks[..., ::-1], lr[:, ::-1], hr[:, ::-1]
                 given = None if given is None else given[..., ::-1] * _FLIP_X
-                age = None if age is None else age[:, ::-1]
             if cfg.flips and rng.random() < 0.5:
                 stacks, lr, hr = stacks[..., ::-1, :], lr[::-1], hr[::-1]
                 given = None if given is None else given[..., ::-1, :] * _FLIP_Y
-                age = None if age is None else age[::-1]
         stacks = np.ascontiguousarray(stacks)
         n, _, h, w = stacks.shape
         if given is not None:  # exact, or cached whole-frame flow: cropped/flipped above
@@ -260,55 +236,8 @@ class ShardSamples(Dataset):
             flows = stack_flows(stacks, cfg.flow)
         else:
             flows = np.zeros((n, 2, h, w), np.float32)
-        item = {"stacks": torch.from_numpy(stack_to_input(stacks)),
+        return {"stacks": torch.from_numpy(stack_to_input(stacks)),
                 "flows": torch.from_numpy(flows),
                 "lr": torch.from_numpy(np.ascontiguousarray(lr))[None],
                 "hr": torch.from_numpy(np.ascontiguousarray(hr))[None],
                 "index": torch.tensor(i)}
-        if age is not None:
-            per_stack = ref.stacks(cfg.stacks).events_per_stack
-            item["history"] = torch.from_numpy(history_input(age, per_stack, self.history))
-        return item
-
-
-def clips_of(refs: list[SampleRef], length: int, stride: int = 1
-             ) -> list[tuple[SampleRef, ...]]:
-    """``refs`` cut into clips of ``length`` frames of one sequence, ``stride`` frames apart,
-    in order; each frame in at most one clip. A run of consecutive frames is cut from its
-    start into blocks of ``length * stride`` frames, each holding ``stride`` interleaved
-    clips; what is left over is dropped."""
-    runs: list[list[SampleRef]] = []
-    for ref in refs:
-        last = runs[-1][-1] if runs else None
-        if last is None or (ref.path, ref.sequence, ref.frame) != \
-                (last.path, last.sequence, last.frame + 1):
-            runs.append([])
-        runs[-1].append(ref)
-    span = length * stride
-    return [tuple(run[b + o:b + span:stride]) for run in runs
-            for b in range(0, len(run) - span + 1, span) for o in range(stride)]
-
-
-class ClipSamples(ShardSamples):
-    """``dataset[i]``: clip ``i``'s frames as :class:`ShardSamples` gives them, stacked on a
-    new first axis (``stacks`` (L, n, c, h, w), ``hr`` (L, 1, sh, sw), ...), every frame
-    cropped and flipped alike (the draws of sample ``i``), so the scene stays in place from
-    one output to the next as it does in a recording; ``index`` is ``i``."""
-
-    def __init__(self, clips: list[tuple[SampleRef, ...]], data: DataConfig, n_stacks: int,
-                 scale: int, train: bool, seed: int = 0, cache: InputCache | None = None,
-                 history: tuple[float, ...] = ()) -> None:
-        if len({len(c) for c in clips}) > 1:
-            raise ValueError("clips must all have the same length")
-        super().__init__([r for c in clips for r in c], data, n_stacks, scale, train, seed,
-                         cache, history)
-        self.clips = clips
-
-    def __len__(self) -> int:
-        return len(self.clips)
-
-    def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
-        items = [self._sample(ref, i) for ref in self.clips[i]]
-        out = {k: torch.stack([it[k] for it in items]) for k in items[0] if k != "index"}
-        out["index"] = torch.tensor(i)
-        return out

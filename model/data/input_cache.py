@@ -15,8 +15,6 @@ so an interrupted build leaves nothing that looks finished and resumes shard by 
         lr.npy, hr.npy [R, 1, H, W], [R, 1, sH, sW]   the sample's frames (the shard's dtype)
         rows.npy    int32[R, 2n]            per sample: n stack rows, then n flow rows (-1:
                                             the central stack, whose flow is zero)
-        age.npy     float32[R, 1, H, W]     with ``history``: each pixel's event age at the
-                                            sample's anchor (model/data/history.py)
         keys.json   ["seq_000012/17", ...]  sequence/frame of each sample row
 
 The two hashes cover everything the arrays depend on (stack settings, flow method, number
@@ -44,7 +42,6 @@ from datagen.shard import ShardReader
 from esim_lite.core.scales import hr_camera
 from esim_lite.core.stacking import StackConfig, stacks_around
 from model.data.classical_flow import classical_flow, stack_to_gray
-from model.data.history import EventAge
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +55,6 @@ class CacheSpec:
     n_stacks: int
     scale: int
     stack_rule: str = "fixed"  # data.stack_rule: the samples carry their stack sizes
-    history: bool = False  # cache each sample's event age (a model with model.history)
 
     def __post_init__(self) -> None:
         if self.stacks.method != "sbn":
@@ -81,8 +77,6 @@ def cache_folder(spec: CacheSpec, shard: Path) -> Path:
     shard's content identity."""
     real = Path(shard).resolve()
     text = repr(spec)
-    if not spec.history:  # caches built before the history existed keep their key
-        text = text.replace(", history=False", "")
     if spec.stack_rule == "fixed":  # caches built before the rule existed keep their key
         text = text.replace(", stack_rule='fixed'", "")
     key = hashlib.sha256(text.encode()).hexdigest()[:12]
@@ -93,7 +87,7 @@ def _shard_arrays(path: Path, refs: list, spec: CacheSpec) -> dict[str, np.ndarr
     """All cached arrays of one shard's samples ``refs`` (model.data.dataset.SampleRef)."""
     mid = spec.n_stacks // 2
     stacks, stack_rows = [], {}
-    flows, lr, hr, rows, keys, ages = [], [], [], [], [], []
+    flows, lr, hr, rows, keys = [], [], [], [], []
     hr_name = hr_camera(spec.scale)
     with ShardReader(path) as reader:
         by_seq: dict[str, list] = {}
@@ -101,11 +95,7 @@ def _shard_arrays(path: Path, refs: list, spec: CacheSpec) -> dict[str, np.ndarr
             by_seq.setdefault(r.sequence, []).append(r)
         for seq, seq_refs in sorted(by_seq.items()):
             events = reader.events(seq)
-            history = EventAge(events.sensor_hw) if spec.history else None
             for r in sorted(seq_refs, key=lambda r: r.anchor):
-                if history is not None:
-                    ages.append(history.age_at(events, 0, r.anchor)[None])
-                    history.advance(events, 0, r.anchor)
                 built = stacks_around(events, r.stacks(spec.stacks), spec.n_stacks, r.anchor,
                                       r.t_ns)
                 idx = []
@@ -129,16 +119,13 @@ def _shard_arrays(path: Path, refs: list, spec: CacheSpec) -> dict[str, np.ndarr
                 hr.append(reader.frame(seq, hr_name, r.frame, as_stored=True)[None])
                 keys.append(f"{seq}/{r.frame}")
     h, w = events.sensor_hw
-    arrays = {"stacks": np.stack(stacks), "rows": np.asarray(rows, np.int32),
-              "flows": np.stack(flows) if flows else np.zeros((0, 2, h, w), np.float16),
-              "lr": np.stack(lr), "hr": np.stack(hr), "keys": keys}
-    if spec.history:
-        arrays["age"] = np.stack(ages)
-    return arrays
+    return {"stacks": np.stack(stacks), "rows": np.asarray(rows, np.int32),
+            "flows": np.stack(flows) if flows else np.zeros((0, 2, h, w), np.float16),
+            "lr": np.stack(lr), "hr": np.stack(hr), "keys": keys}
 
 
-def _names(spec: CacheSpec) -> tuple[str, ...]:
-    return ("stacks", "flows", "lr", "hr", "rows") + (("age",) if spec.history else ())
+ARRAYS = ("stacks", "flows", "lr", "hr", "rows")
+"""The arrays of a cache folder, one ``.npy`` file each."""
 
 
 def _ref_key(ref) -> str:
@@ -166,7 +153,7 @@ def build_shard(folder: Path, path: Path, refs: list, spec: CacheSpec) -> Path:
     tmp.mkdir(parents=True)
     try:
         arrays = _shard_arrays(path, refs, spec)
-        for name in _names(spec):
+        for name in ARRAYS:
             np.save(tmp / f"{name}.npy", arrays[name])
         (tmp / "keys.json").write_text(json.dumps(arrays["keys"]))
         old = folder.with_name(f"{folder.name}.old-{os.getpid()}")
@@ -194,9 +181,8 @@ class InputCache:
     Memory maps are opened lazily, once per process (DataLoader workers included).
     """
 
-    def __init__(self, folders: dict[str, Path], history: bool = False) -> None:
+    def __init__(self, folders: dict[str, Path]) -> None:
         self.folders = folders  # shard path -> its cache folder
-        self.history = history  # the folders hold each sample's event age
         self._maps: dict[str, dict] = {}
         self._pid: int | None = None
 
@@ -224,15 +210,14 @@ class InputCache:
             else:
                 for job in jobs:
                     _build_job(job)
-        return cls(folders, spec.history)
+        return cls(folders)
 
     def _map(self, path: str) -> dict:
         if self._pid != os.getpid():
             self._maps, self._pid = {}, os.getpid()
         if path not in self._maps:
             folder = self.folders[path]
-            names = ("stacks", "flows", "lr", "hr", "rows") + (("age",) if self.history else ())
-            m = {n: np.load(folder / f"{n}.npy", mmap_mode="r") for n in names}
+            m = {n: np.load(folder / f"{n}.npy", mmap_mode="r") for n in ARRAYS}
             keys = json.loads((folder / "keys.json").read_text())
             m["index"] = {k: i for i, k in enumerate(keys)}
             self._maps[path] = m
@@ -245,13 +230,6 @@ class InputCache:
         except KeyError as exc:
             raise ValueError(f"{self.folders[ref.path]}: no cached sample for "
                              f"{ref.sequence} frame {ref.frame}") from exc
-
-    def age(self, ref) -> np.ndarray:
-        """float32[H, W]: the sample's event age (a cache built with ``history``)."""
-        if not self.history:
-            raise ValueError("this input cache was built without the event history")
-        m, row = self._row(ref)
-        return np.asarray(m["age"][row, 0], np.float32)
 
     def sample(self, ref) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         m, row = self._row(ref)

@@ -205,12 +205,6 @@ def load_engine(engine: str, net: E2SRI, device: torch.device,
     chosen = choose(engine, device)
     if chosen == "torch":
         return TorchEngine(net)
-    if net.config.memory:  # the exports take one output's inputs, not a carried state
-        if engine == "auto":
-            log.info("a network with memory across outputs runs on torch")
-            return TorchEngine(net)
-        raise ValueError(f"engine {engine}: a network with memory across outputs "
-                         f"(model.memory) runs on the torch engine only")
     try:
         return _compiled(chosen, net, sensor_hw, cache, stack_rule, calibrate)
     except Exception as exc:

@@ -194,23 +194,15 @@ def run_sequence(recording: Recording, model: Reconstructor, frame_ids: list[int
     window = model.event_window(recording.events(chunk_size), recording.sensor_hw, chunk_size)
     fed, next_frame = 0, 0
     window.pin = fed  # the baselines have consumed the events before this index
-    memory = model.net.config.memory
-    model.reset()
     for pos, k in enumerate(frame_ids):
         t = int(frames.t_ns[k])
-        if memory and pos:  # the frames between scored ones feed the memory, in order
-            for j in range(frame_ids[pos - 1] + 1, k):
-                _run_at(model, window, int(frames.t_ns[j]), _aps_of(model, frames, j))
         given = model.stacks_at(window, t)
         anchor = given.anchor
         aps = _aps_of(model, frames, k)
-        if exposures is not None:  # in time order: a memory carries from each to the next
-            ours, n = _over_exposure(model, window, t, None if memory else
-                                     model.run(given.stacks, aps, given.history)[0], aps,
-                                     exposures[k])
+        ours, _ = model.run(given.stacks, aps)
+        if exposures is not None:
+            ours, n = _over_exposure(model, window, t, ours, aps, exposures[k])
             out.averaged.append(n)
-        else:
-            ours, _ = model.run(given.stacks, aps, given.history)
         # baselines see every event up to t and the APS frames strictly before t, in order
         while next_frame < len(frames) and frames.t_ns[next_frame] < t:
             tf = int(frames.t_ns[next_frame])
@@ -243,21 +235,19 @@ def _aps_of(model: Reconstructor, frames, k: int) -> np.ndarray | None:
     return frames.intensity[k] if model.net.config.central == "aps" else None
 
 
-def _over_exposure(model: Reconstructor, window, t: int, at_t: np.ndarray | None,
+def _over_exposure(model: Reconstructor, window, t: int, at_t: np.ndarray,
                    aps: np.ndarray | None, exposure: np.ndarray) -> tuple[np.ndarray, int]:
     """Our outputs at the stack boundaries inside ``exposure`` and at ``t`` (``at_t``,
-    already made, or None to make it in its turn), averaged over the window
-    (:func:`exposure_average`)."""
+    already made), averaged over the window (:func:`exposure_average`)."""
     start, end = int(exposure[0]), int(exposure[1])
     times = sorted(set(boundary_times(window, model.stacks.events_per_stack, start, end)) | {t})
-    images = [at_t if u == t and at_t is not None else _run_at(model, window, u, aps)
-              for u in times]
+    images = [at_t if u == t else _run_at(model, window, u, aps) for u in times]
     return exposure_average(times, images, (start, end))
 
 
 def _run_at(model: Reconstructor, window, t: int, aps: np.ndarray | None) -> np.ndarray:
     given = model.stacks_at(window, t)
-    return model.run(given.stacks, aps, given.history)[0]
+    return model.run(given.stacks, aps)[0]
 
 
 def unscored_sequence(recording: Recording, model: Reconstructor, options: EvalOptions,
@@ -268,12 +258,11 @@ def unscored_sequence(recording: Recording, model: Reconstructor, options: EvalO
     window = model.event_window(recording.events(chunk_size), recording.sensor_hw, chunk_size)
     hf = EventFilter("hf", recording.sensor_hw, options.filters)
     out = SequenceOutputs(name, {"ours": [], "hf": []}, [], None, [], model.stack_choice)
-    model.reset()
     fed = window.pin = 0
     plan = OutputPlan("events", model.stacks.events_per_stack)
     for t, _ in output_times(plan, recording, window):
         given = model.stacks_at(window, t)
-        ours, _ = model.run(given.stacks, None, given.history)
+        ours, _ = model.run(given.stacks, None)
         hf.add_events(window.slice(fed, given.anchor)[0])
         fed = window.pin = given.anchor
         window.forget(min(fed, given.first))

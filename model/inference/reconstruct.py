@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Literal
 
@@ -34,7 +34,6 @@ from esim_lite.core.stacking import StackConfig, stack_span_ns, stack_to_input, 
 from model import checkpoint
 from model.archs.e2sri_arch import CENTRAL_OF_MODE, E2SRI, central_input
 from model.data.classical_flow import stack_flows
-from model.data.history import EventAge, history_input
 from model.inference.engines import Forward, load_engine
 from model.inference.fill import FillConfig, fill_unobserved
 from model.inference.quantize import CalibrationSource
@@ -51,21 +50,15 @@ class EventWindow:
     events behind the newest one read, events are dropped, unless ``pin`` holds them.
     ``keep_ns`` does the same by time: when a chunk is read, events more than ``keep_ns``
     older than the newest event *before* it are dropped (a read-ahead never reaches back
-    further than the time it was asked for).
-
-    With ``history``, every event is folded into a running latest-event map
-    (:class:`model.data.history.EventAge`) as it is dropped, so :meth:`age_at` answers for
-    any anchor not yet dropped, whatever the window forgot."""
+    further than the time it was asked for)."""
 
     def __init__(self, chunks: Iterator[Events], hw: tuple[int, int],
-                 keep: int | None = None, keep_ns: int | None = None,
-                 history: bool = False) -> None:
+                 keep: int | None = None, keep_ns: int | None = None) -> None:
         if keep is not None and keep_ns is not None:
             raise ValueError("give keep or keep_ns, not both")
         self._chunks, self.hw, self.keep, self.keep_ns = chunks, hw, keep, keep_ns
         self.buf, self.offset, self.done = Events.empty(hw), 0, False
         self.pin: int | None = None
-        self.history = EventAge(hw) if history else None
 
     @property
     def end(self) -> int:
@@ -108,43 +101,22 @@ class EventWindow:
 
     def forget(self, index: int) -> None:
         if index > self.offset:
-            new = min(index, self.end)  # before the buffer shrinks: ``end`` depends on it
-            if self.history is not None:
-                self.history.advance(self.buf, self.offset, new)
+            new = min(index, self.end)
             self.buf = self.buf.slice(new - self.offset, len(self.buf))
             self.offset = new
-
-    def age_at(self, anchor: int) -> np.ndarray:
-        """float32[H, W]: every pixel's event age before global index ``anchor``
-        (:func:`model.data.history.event_age`; a window made with ``history``)."""
-        if self.history is None:
-            raise ValueError("this event window keeps no event history")
-        while not self.done and self.end < anchor:
-            self._pull()
-        return self.history.age_at(self.buf, self.offset, min(anchor, self.end))
 
 
 @dataclass(frozen=True, eq=False)
 class StackedEvents:
     """One output's input: ``stacks`` uint8[n, c, H, W] built from ``events`` (global index
     of its first event: ``first``); ``anchor``: global index of the first event after the
-    output time; ``central``: the central stack's event range within ``events``;
-    ``history``: float32[k, H, W] event history for a model that reads one, else None."""
+    output time; ``central``: the central stack's event range within ``events``."""
 
     stacks: np.ndarray
     events: Events
     first: int
     anchor: int
     central: tuple[int, int]
-    history: np.ndarray | None = None
-
-
-@dataclass(eq=False)
-class Memory:
-    """What a network with memory across outputs (``model.memory``) carries from one
-    output to the next: the last output's state, None before the first."""
-
-    state: torch.Tensor | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -155,9 +127,7 @@ class Reconstructor:
     network in eager PyTorch); ``first_pass`` is the first pass's, on the same engine;
     ``stack_choice``: how ``stacks.events_per_channel`` was chosen (None: set by hand);
     ``fill``: how :meth:`run` fills what no event saw after the network
-    (:mod:`model.inference.fill`; the default leaves the network's output); ``memory``: the
-    state a network with memory across outputs carries from one :meth:`run` to the next (a
-    fresh one per recording: :meth:`reset`)."""
+    (:mod:`model.inference.fill`; the default leaves the network's output)."""
 
     net: E2SRI
     first_pass: Forward | None
@@ -166,7 +136,6 @@ class Reconstructor:
     engine: Forward | None = None
     stack_choice: StackChoice | None = None
     fill: FillConfig = FillConfig()
-    memory: Memory = field(default_factory=Memory)
 
     @classmethod
     def load(cls, ckpt: str | Path, sensor_hw: tuple[int, int], mode: Mode = "main",
@@ -229,11 +198,7 @@ class Reconstructor:
                               given, activity)
         return replace(self, stacks=replace(self.stacks,
                                             events_per_channel=choice.events_per_channel),
-                       stack_choice=choice, memory=Memory())
-
-    def reset(self) -> None:
-        """Forget what earlier outputs left in the memory (before a new recording)."""
-        self.memory.state = None
+                       stack_choice=choice)
 
     @property
     def engine_name(self) -> str:
@@ -244,13 +209,10 @@ class Reconstructor:
                      chunk_size: int) -> EventWindow:
         """A window over ``chunks`` holding what the stacks of one output need (SBN: a
         count of events; SBT: a time span), plus the read-ahead of ``chunk_size`` chunks."""
-        n, history = self.net.config.n_stacks, bool(self.net.config.history)
+        n = self.net.config.n_stacks
         if self.stacks.method == "sbt":
-            if history:
-                raise ValueError("a model with an event-history input needs SBN stacks")
             return EventWindow(chunks, hw, keep_ns=(n + 1) * stack_span_ns(self.stacks))
-        return EventWindow(chunks, hw, keep=n * self.stacks.events_per_stack + 2 * chunk_size,
-                           history=history)
+        return EventWindow(chunks, hw, keep=n * self.stacks.events_per_stack + 2 * chunk_size)
 
     def first_needed(self, window: EventWindow, t_ns: int) -> int:
         """Global index of the first event the stacks of an output at ``t_ns`` read."""
@@ -273,21 +235,13 @@ class Reconstructor:
         events, first = window.slice(lo, hi)
         built = stacks_around(events, cfg, n, anchor - first, t_ns)
         centre = built[half]
-        history = None
-        if self.net.config.history:
-            history = history_input(window.age_at(anchor), cfg.events_per_stack,
-                                    self.net.config.history)
         return StackedEvents(np.stack([st.image for st in built]), events, first, anchor,
-                             (centre.start, centre.end), history)
+                             (centre.start, centre.end))
 
     @torch.inference_mode()
-    def run(self, stacks: np.ndarray, aps: np.ndarray | None,
-            history: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+    def run(self, stacks: np.ndarray, aps: np.ndarray | None) -> tuple[np.ndarray, dict]:
         """(float32[sH, sW] image in [0, 1], seconds spent in flow and network) for uint8
-        stacks ``[n, c, H, W]`` (and the APS frame for Complementary, the event history
-        float32[k, H, W] for a model that reads one: :attr:`StackedEvents.history`).
-        A network with memory across outputs reads the state the previous call left and
-        leaves its own: call it in time order, and :meth:`reset` between recordings."""
+        stacks ``[n, c, H, W]`` (and the APS frame for Complementary)."""
         timing = {}
         start = time.perf_counter()
         flows = stack_flows(stacks) if self.net.config.flow == "given" else \
@@ -296,7 +250,7 @@ class Reconstructor:
         start = time.perf_counter()
         x = torch.from_numpy(stack_to_input(stacks))[None].to(self.device)
         f = torch.from_numpy(flows)[None].to(self.device)
-        central = self._central(x, f, aps, history)
+        central = self._central(x, f, aps)
         out = self.forward(x, central, f).clamp(0, 1)[0, 0].float().cpu().numpy()
         if self.device.type == "cuda":
             torch.cuda.synchronize()
@@ -307,23 +261,14 @@ class Reconstructor:
             timing["fill"] = time.perf_counter() - start
         return out, timing
 
-    def forward(self, x: torch.Tensor, central: torch.Tensor, f: torch.Tensor,
-                eager: bool = False) -> torch.Tensor:
-        """The network's output before the clamp, on the engine (``eager``: the network
-        itself); a network with memory across outputs reads the state the previous call
-        left and leaves its own (:attr:`memory`)."""
-        if self.net.config.memory:
-            out, self.memory.state = self.net(x, central, f, memory=self.memory.state,
-                                              return_state=True)
-            return out
-        return (self.net if eager else self.engine or self.net)(x, central, f)
+    def forward(self, x: torch.Tensor, central: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
+        """The network's output before the clamp, on the engine."""
+        return (self.engine or self.net)(x, central, f)
 
-    def _central(self, x, f, aps, history=None):
+    def _central(self, x, f, aps):
         if aps is not None:
             aps = torch.from_numpy(aps.astype(np.float32))[None, None].to(self.device)
-        if history is not None:
-            history = torch.from_numpy(np.asarray(history, np.float32))[None].to(self.device)
-        return central_input(self.net.config, x, f, aps, self.first_pass, history)
+        return central_input(self.net.config, x, f, aps, self.first_pass)
 
 
 @dataclass(frozen=True)
@@ -383,7 +328,6 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
     ``temporal``: weight of the blind temporal-consistency post-process (None: off); it
     needs only the previous frame, so memory stays bounded."""
     out = Path(out)
-    model.reset()
     window = model.event_window(recording.events(chunk), recording.sensor_hw, chunk)
     seconds = {"stacking": 0.0, "flow": 0.0, "network": 0.0}
     paths, times, previous = [], [], None
@@ -395,7 +339,7 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
         window.forget(given.first)
         seconds["stacking"] += time.perf_counter() - start
         aps = recording.frames.intensity[k] if k is not None else None
-        image, timing = model.run(given.stacks, aps, given.history)
+        image, timing = model.run(given.stacks, aps)
         for key, v in timing.items():
             seconds[key] = seconds.get(key, 0.0) + v
         if temporal is not None:

@@ -1,6 +1,5 @@
-"""The similarity loss of the paper, L1 + lambda * LPIPS(AlexNet), an optional
-smoothness term where no event fired (model/losses/unfired.py) and an optional target that
-leaves what no event saw to a smooth fill (model/losses/unseen.py)."""
+"""The similarity loss of the paper, L1 + lambda * LPIPS(AlexNet), and an optional
+smoothness term where no event fired (model/losses/unfired.py)."""
 
 from __future__ import annotations
 
@@ -9,7 +8,6 @@ from torch import nn
 
 from model.losses.lpips import LPIPS
 from model.losses.unfired import UnfiredSmoothness
-from model.losses.unseen import UnseenFill
 
 
 class SimilarityLoss(nn.Module):
@@ -17,25 +15,17 @@ class SimilarityLoss(nn.Module):
     the ``(B, n, c, h, w)`` input stacks -> (scalar loss, {"l1", "lpips", "unfired_tv"}).
 
     ``lpips_weight`` = 0 skips LPIPS entirely (no weights needed); ``unfired_tv`` > 0 adds
-    that weight times :class:`UnfiredSmoothness`; ``fill_unseen`` scores L1 and LPIPS
-    against :class:`UnseenFill`'s target (widened by ``fill_dilate`` LR pixels). Both need
-    the stacks."""
+    that weight times :class:`UnfiredSmoothness`, which needs the stacks."""
 
     def __init__(self, lpips_weight: float = 0.01, lpips: LPIPS | None = None,
-                 unfired_tv: float = 0.0, unfired_dilate: int = 1,
-                 fill_unseen: bool = False, fill_dilate: int = 2) -> None:
+                 unfired_tv: float = 0.0, unfired_dilate: int = 1) -> None:
         super().__init__()
         self.lpips_weight, self.unfired_weight = lpips_weight, unfired_tv
         self.lpips = (lpips or LPIPS()) if lpips_weight > 0 else None
         self.unfired = UnfiredSmoothness(dilate=unfired_dilate) if unfired_tv > 0 else None
-        self.fill = UnseenFill(dilate=fill_dilate) if fill_unseen else None
 
     def forward(self, output: torch.Tensor, target: torch.Tensor,
                 stacks: torch.Tensor | None = None) -> tuple[torch.Tensor, dict[str, float]]:
-        if self.fill is not None:
-            if stacks is None:
-                raise ValueError("the unseen-fill target needs the input stacks")
-            target = self.fill(target, stacks).to(target.dtype)
         loss = torch.mean(torch.abs(output - target))
         parts = {"l1": float(loss.detach())}
         if self.lpips is not None:

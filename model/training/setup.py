@@ -16,7 +16,7 @@ import torch.distributed as dist
 from datagen.shard import find_shards
 from model.config import TrainConfig
 from model.data.config import DataConfig
-from model.data.dataset import ClipSamples, ShardSamples, clips_of, index_samples
+from model.data.dataset import ShardSamples, index_samples
 from model.data.input_cache import CacheSpec, InputCache
 
 
@@ -84,34 +84,18 @@ def build_data(config: TrainConfig, data: str | Path, env: Distributed = Distrib
     data_cfg = data_config or cfg.data
     shards = find_shards(data)
     train_refs, val_refs = index_samples(shards, data_cfg, cfg.model.n_stacks, cfg.model.scale)
-    clip = data_cfg.clip
-    if clip > 1:  # memory across outputs: clips of consecutive frames
-        stride = data_cfg.clip_stride
-        train_clips = clips_of(train_refs, clip, stride)
-        val_clips = clips_of(val_refs, clip, stride)
-        if spread_val and run.val_batches is not None:
-            val_clips = spread(val_clips, run.val_batches * cfg.optim.batch_size)
-        train_refs = [r for c in train_clips for r in c]
-        val_refs = [r for c in val_clips for r in c]
-    elif spread_val and run.val_batches is not None:
+    if spread_val and run.val_batches is not None:
         val_refs = spread(val_refs, run.val_batches * cfg.optim.batch_size)
     cache = None
     if use_cache and data_cfg.cache:
         spec = CacheSpec(data_cfg.stacks, data_cfg.flow, cfg.model.n_stacks, cfg.model.scale,
-                         data_cfg.stack_rule, bool(cfg.model.history))
+                         data_cfg.stack_rule)
         cache = InputCache.build(shards, train_refs + val_refs, spec,
                                  workers=max(1, os.cpu_count() or 1) if env.main else 1)
-    history = cfg.model.history
-    if clip > 1:
-        train_set = ClipSamples(train_clips, data_cfg, cfg.model.n_stacks, cfg.model.scale,
-                                True, run.seed, cache, history)
-        val_set = ClipSamples(val_clips, data_cfg, cfg.model.n_stacks, cfg.model.scale,
-                              False, cache=cache, history=history)
-    else:
-        train_set = ShardSamples(train_refs, data_cfg, cfg.model.n_stacks, cfg.model.scale,
-                                 True, run.seed, cache, history)
-        val_set = ShardSamples(val_refs, data_cfg, cfg.model.n_stacks, cfg.model.scale,
-                               False, cache=cache, history=history)
+    train_set = ShardSamples(train_refs, data_cfg, cfg.model.n_stacks, cfg.model.scale, True,
+                             run.seed, cache)
+    val_set = ShardSamples(val_refs, data_cfg, cfg.model.n_stacks, cfg.model.scale, False,
+                           cache=cache)
     steps = len(epoch_batches(len(train_set), cfg.optim.batch_size, run.seed, 0, env.rank,
                               env.world))
     if steps == 0:

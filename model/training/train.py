@@ -56,33 +56,13 @@ def lr_lambda(optim: OptimConfig, steps_per_epoch: int):
 def central_input(batch: dict, config: TrainConfig, first_pass: E2SRI | None) -> torch.Tensor:
     """What the network's central input is for this experiment (see NetConfig.central)."""
     return e2sri_arch.central_input(config.model, batch["stacks"], batch["flows"],
-                                    batch["lr"], first_pass, batch.get("history"))
+                                    batch["lr"], first_pass)
 
 
-def frames_of(batch: dict) -> list[dict]:
-    """A batch's outputs in time order: the batch itself, or, for clips of consecutive
-    outputs (``data.clip``: tensors ``(B, L, ...)``), one batch per position in the clip."""
-    if batch["hr"].ndim == 4:
-        return [batch]
-    return [{k: v[:, t] for k, v in batch.items() if k != "index"}
-            for t in range(batch["hr"].shape[1])]
-
-
-def run_frames(model, batch: dict, config: TrainConfig, first_pass: E2SRI | None
-               ) -> list[tuple[torch.Tensor, dict]]:
-    """(output, its frame's batch) for every output of ``batch`` in time order; a network
-    with memory (``model.memory``) carries its state from each output to the next, starting
-    from none, and gradients flow back through the whole clip."""
-    memory, outputs = None, []
-    for frame in frames_of(batch):
-        central = central_input(frame, config, first_pass)
-        if config.model.memory:
-            out, memory = model(frame["stacks"], central, frame["flows"], memory=memory,
-                                return_state=True)
-        else:
-            out = model(frame["stacks"], central, frame["flows"])
-        outputs.append((out, frame))
-    return outputs
+def run_batch(model, batch: dict, config: TrainConfig, first_pass: E2SRI | None
+              ) -> torch.Tensor:
+    """The network's output for every sample of ``batch``, ``(B, 1, sH, sW)``."""
+    return model(batch["stacks"], central_input(batch, config, first_pass), batch["flows"])
 
 
 @torch.inference_mode()
@@ -96,18 +76,18 @@ def validate(net: E2SRI, loader: DataLoader, config: TrainConfig, device: torch.
         if max_batches is not None and b >= max_batches:
             break
         batch = {k: v.to(device) for k, v in batch.items()}
-        for out, frame in run_frames(net, batch, config, first_pass):
-            out, hr = out.float().clamp(0, 1), frame["hr"]
-            values = {"psnr": psnr(out, hr), "ssim": ssim(out, hr), "mse": mse(out, hr)}
-            if lpips_net is not None:
-                values["lpips"] = lpips_net(out, hr)
-            for k, v in values.items():
-                sums[k] += float(v.sum())
-            count += len(hr)
-        if len(examples) < 4:  # a clip's last output: the one with the most memory
+        out = run_batch(net, batch, config, first_pass).float().clamp(0, 1)
+        hr = batch["hr"]
+        values = {"psnr": psnr(out, hr), "ssim": ssim(out, hr), "mse": mse(out, hr)}
+        if lpips_net is not None:
+            values["lpips"] = lpips_net(out, hr)
+        for k, v in values.items():
+            sums[k] += float(v.sum())
+        count += len(hr)
+        if len(examples) < 4:
             mid = config.model.n_stacks // 2
-            examples.append((frame["stacks"][0, mid].cpu().numpy(),
-                             frame["lr"][0, 0].cpu().numpy(), out[0, 0].cpu().numpy(),
+            examples.append((batch["stacks"][0, mid].cpu().numpy(),
+                             batch["lr"][0, 0].cpu().numpy(), out[0, 0].cpu().numpy(),
                              hr[0, 0].cpu().numpy()))
     net.train()
     if lpips_net is None:
@@ -175,9 +155,7 @@ def build_state(cfg: TrainConfig, env: Distributed, steps_per_epoch: int,
             raise ValueError("run.flow_init needs model.flow = learned")
         net.flow_net.load_state_dict(checkpoint.load_any(run.flow_init)["flow_net"])
     criterion = SimilarityLoss(cfg.loss.lpips_weight, unfired_tv=cfg.loss.unfired_tv,
-                               unfired_dilate=cfg.loss.unfired_dilate,
-                               fill_unseen=cfg.loss.fill_unseen,
-                               fill_dilate=cfg.loss.fill_dilate).to(env.device)
+                               unfired_dilate=cfg.loss.unfired_dilate).to(env.device)
     optimizer = torch.optim.Adam(net.parameters(), lr=cfg.optim.lr, betas=cfg.optim.betas,
                                  weight_decay=cfg.optim.weight_decay)
     scheduler = torch.optim.lr_scheduler.LambdaLR(optimizer,
@@ -257,7 +235,7 @@ class RunLog:
             self.writer.add_scalar(f"val/{k}", v, state.step)
         self.history.add(state.step, state.train_seconds() / 3600, metrics)
         self.history.save()
-        frames = len(self.data.val_set) * cfg.data.clip
+        frames = len(self.data.val_set)
         self.history.plot(self.out / "val_curve.png", f"validation: {frames} "
                           f"held-out frames, whole {hw[1]}x{hw[0]} -> x{cfg.model.scale}, "
                           f"outputs clipped to [0, 1], no intensity fit")
@@ -278,8 +256,8 @@ def train_one_epoch(state: TrainState, data: TrainData, cfg: TrainConfig, env: D
         batch = {k: v.to(env.device, non_blocking=True) for k, v in batch.items()}
         with torch.autocast(env.device.type, dtype=state.amp_dtype) if state.amp_dtype \
                 else nullcontext():
-            outputs = run_frames(state.model, batch, cfg, state.first_pass)
-        loss, parts = clip_loss(state.criterion, outputs)
+            output = run_batch(state.model, batch, cfg, state.first_pass)
+        loss, parts = state.criterion(output.float(), batch["hr"], batch["stacks"])
         if not torch.isfinite(loss):
             report.save(state, out / f"nan_step{state.step}.pt")
             raise FloatingPointError(f"loss is {loss.item()} at step {state.step}; the state "
@@ -304,19 +282,6 @@ def train_one_epoch(state: TrainState, data: TrainData, cfg: TrainConfig, env: D
         if stop:
             return True
     return False
-
-
-def clip_loss(criterion: SimilarityLoss, outputs: list[tuple[torch.Tensor, dict]]
-              ) -> tuple[torch.Tensor, dict]:
-    """The loss of each output against its frame's target, averaged over a clip's outputs
-    (a single output: its loss)."""
-    losses, parts = [], {}
-    for out, frame in outputs:
-        loss, p = criterion(out.float(), frame["hr"], frame["stacks"])
-        losses.append(loss)
-        for k, v in p.items():
-            parts[k] = parts.get(k, 0.0) + v / len(outputs)
-    return torch.stack(losses).mean(), parts
 
 
 def _optimise(state: TrainState, loss: torch.Tensor, grad_clip: float | None) -> None:
@@ -408,9 +373,9 @@ def _flat(mapping, prefix: str = "") -> dict:
 def check_resumable(config: TrainConfig, state: dict, path: Path) -> None:
     """Refuse to resume ``path`` under a config that changes what is learnt or the batch
     plan (network, data, loss, optimiser, seed): the message names the differing keys."""
-    from esim_lite.core.dataconf import load_yaml_text, to_mapping
+    from esim_lite.core.dataconf import to_mapping
 
-    stored = _flat(to_mapping(load_yaml_text(TrainConfig, state["config"], source=str(path))))
+    stored = _flat(to_mapping(checkpoint.config_of(state, str(path))))
     now = _flat(to_mapping(config))
     differ = sorted(k for k in set(stored) | set(now)
                     if stored.get(k) != now.get(k) and k not in RESUMABLE_CHANGES)

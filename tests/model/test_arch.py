@@ -26,8 +26,6 @@ def inputs(cfg: NetConfig, b=2, h=24, w=20):
     stacks = torch.randint(-1, 2, (b, cfg.n_stacks, cfg.stack_channels, h, w), generator=g)
     central = stacks[:, cfg.n_stacks // 2].float() if cfg.central == "stack" else \
         torch.rand(b, 1, h, w, generator=g)
-    if cfg.history:  # the event-history channels follow the central input
-        central = torch.cat([central, torch.rand(b, len(cfg.history), h, w, generator=g)], 1)
     return stacks.float(), central, torch.randn(b, cfg.n_stacks, 2, h, w, generator=g)
 
 
@@ -157,25 +155,6 @@ def test_first_pass_and_aps_centrals_change_only_the_first_layers():
     shapes_b = {k: v.shape for k, v in b.state_dict().items()}
     assert {k for k in shapes_a if shapes_a[k] != shapes_b[k]} == {"efr0.0.0.weight",
                                                                   "efr.0.0.weight"}
-
-
-@pytest.mark.parametrize("scale", [2, 4])
-def test_folding_space_to_depth_handles_any_size(scale):
-    """fold=2 pads odd sizes with zeros (no events, no flow) and crops the output back; on
-    sizes it divides, the padding changes nothing."""
-    cfg = NetConfig(scale=scale, base_channels=8, hr_channels=4, c_blocks=1, blocks=1,
-                    state="lr", fold=2)
-    torch.manual_seed(0)
-    net = E2SRI(cfg).eval()
-    stacks, central, flows = inputs(cfg, b=1, h=17, w=13)
-    with torch.no_grad():
-        out = net(stacks, central, flows)
-        assert out.shape == (1, 1, 17 * scale, 13 * scale)
-        padded = [torch.nn.functional.pad(t, (0, 1, 0, 1)) for t in (stacks, central, flows)]
-        big = net(*padded)
-    torch.testing.assert_close(out, big[..., :17 * scale, :13 * scale])
-    with pytest.raises(ValueError, match="fold"):
-        NetConfig(fold=2)  # the paper's HR-state layout has nothing to fold
 
 
 def test_the_network_has_a_projection_for_every_scale_datagen_renders():
