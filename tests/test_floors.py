@@ -37,11 +37,6 @@ GENERATOR = ("datagen.generate", "datagen.sampling", "datagen.sensor_ranges",
              "datagen.textures", "datagen.config", "datagen.lock", "datagen.cli")
 """datagen's generator: the recipe, the per-sequence draws and the run that writes shards."""
 
-LEAVING = ("model.inference.halo_probe",)
-"""Modules that simulate inside inference and are being deleted (issue 49); the rule holds
-for every other module. Remove an entry with its file."""
-
-
 def _module_files() -> dict[str, Path]:
     """Dotted module name -> file, for every module of :data:`PACKAGES`."""
     out = {}
@@ -173,7 +168,7 @@ def test_inside_model_data_stands_below_inference_and_training():
 
 def _running() -> set[str]:
     """model.inference's modules and every model module they reach through model."""
-    seen = {m for m in GRAPH if _under(m, ("model.inference",)) and m not in LEAVING}
+    seen = {m for m in GRAPH if _under(m, ("model.inference",))}
     todo = list(seen)
     while todo:
         for target in GRAPH[todo.pop()]:
@@ -188,7 +183,7 @@ def test_running_a_model_never_simulates():
     assert "model.calibration" not in running and "model.cli" not in running
 
     def outside_the_readers(source: str, target: str) -> bool:
-        return (_under(source, ("model.inference",)) and source not in LEAVING
+        return (_under(source, ("model.inference",))
                 and _under(target, ("esim_lite", "datagen"))
                 and not _under(target, SHARED_FLOOR + READERS))
 
