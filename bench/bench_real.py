@@ -53,6 +53,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"bench_real: skipped: {folder} is not there (the real recordings live in "
               f"../shared/real_events beside the repository; see --folder)")
         return 0
+    from model.calibration import simulated_inputs
     from model.inference.evaluate import EvalOptions
     from model.inference.pretrained import resolve
     from model.inference.real_benchmark import run_benchmark
@@ -64,7 +65,7 @@ def main(argv: list[str] | None = None) -> int:
     start = time.perf_counter()
     try:
         result = run_benchmark(resolve(args.checkpoint, args.scale), folder, args.out,
-                               options, args.engine, command)
+                               options, args.engine, command, simulated_inputs)
     except (FileNotFoundError, ValueError) as exc:
         print(f"bench_real: error: {exc}", file=sys.stderr)
         return 2

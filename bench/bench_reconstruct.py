@@ -106,6 +106,7 @@ def engine_frames(models: list[Reconstructor], events: Events, frames: int, roun
 
 
 def engine_rows(sizes: list[tuple[int, int]], frames: int, rounds: int) -> None:
+    from model.calibration import simulated_inputs
     from model.inference.engines import ENGINES, installed
     from model.inference.pretrained import shipped_checkpoint
 
@@ -118,7 +119,8 @@ def engine_rows(sizes: list[tuple[int, int]], frames: int, rounds: int) -> None:
             ckpt = shipped_checkpoint(scale)
             state = checkpoint.load(ckpt)
             models = [Reconstructor.from_state(state, str(ckpt), hw, device="cpu",
-                                               engine=engine) for engine in available]
+                                               engine=engine, calibrate=simulated_inputs)
+                      for engine in available]
             per = models[0].stacks.events_per_stack
             events = synthetic((models[0].net.config.n_stacks + frames + 2) * per, 1, hw=hw)
             rows = engine_frames(models, events, frames, rounds)

@@ -184,6 +184,28 @@ def preset_yaml(cals: Calibration | Sequence[Calibration], command: str = "") ->
     if len(hws) > 1:
         raise ValueError(f"the recordings come from sensors of different sizes: "
                          f"{sorted(hws)}; calibrate one sensor at a time")
+    lines = _header_lines(cals, command)
+    lines += ["simulation:", "  events:",
+              "    random_start: true   # a running sensor's pixels stand anywhere between "
+              "their levels"]
+    with_thr = [c for c in cals if c.thresholds is not None]
+    if with_thr:
+        lines += ["    thresholds:"] + _threshold_lines(with_thr)
+    else:
+        on = sum(c.stats.on_fraction * c.stats.events for c in cals) / sum(
+            c.stats.events for c in cals)
+        lines += ["    # thresholds: none of the recordings has frames; the base config's stay.",
+                  f"    # The ON share {on:.3f} implies C+/C- = {(1 - on) / on:.2f} where the "
+                  "light ends where it began",
+                  "    # (C+ N_on = C- N_off; leak and noise events aside)"]
+    lines += _refractory_lines(cals)
+    lines += ["    noise:"] + _noise_lines(cals)
+    lines += ["    flicker:"] + _flicker_lines(cals, with_thr)
+    return "\n".join(lines) + "\n"
+
+
+def _header_lines(cals: Sequence[Calibration], command: str) -> list[str]:
+    """The comments on top: the sensor, how to load the preset, and each recording's stats."""
     h, w = cals[0].sensor_hw
     lines = [f"# Sensor preset measured from {len(cals)} recording(s) of one {w}x{h} sensor.",
              *([f"# Made by: {command}"] if command else []),
@@ -199,27 +221,25 @@ def preset_yaml(cals: Calibration | Sequence[Calibration], command: str = "") ->
                   "inter-event intervals p1/p10/p50/p90/p99 (ms) "
                   + "/".join(f"{v:.3g}" for v in st.iei_ms)]
         lines += [f"#   not measured: {n}." for n in cal.notes]
-    lines += ["simulation:", "  events:",
-              "    random_start: true   # a running sensor's pixels stand anywhere between "
-              "their levels"]
-    with_thr = [c for c in cals if c.thresholds is not None]
-    if with_thr:
-        lines += ["    thresholds:"] + _threshold_lines(with_thr)
-    else:
-        on = sum(c.stats.on_fraction * c.stats.events for c in cals) / sum(
-            c.stats.events for c in cals)
-        lines += ["    # thresholds: none of the recordings has frames; the base config's stay.",
-                  f"    # The ON share {on:.3f} implies C+/C- = {(1 - on) / on:.2f} where the "
-                  "light ends where it began",
-                  "    # (C+ N_on = C- N_off; leak and noise events aside)"]
+    return lines
+
+
+def _refractory_lines(cals: Sequence[Calibration]) -> list[str]:
+    """``refractory_ns`` from the recording that bounds it lowest (none if none does)."""
     ref = _pick(cals, lambda c: c.refractory.value)
-    if ref is not None:
-        r = ref.refractory
-        lines += [f"    # {r.value * 1e3:.3g} +- {r.std * 1e3:.2g} ms, the 0.1% quantile of "
-                  f"a pixel's inter-event intervals in {_name(ref)} (the smallest over the "
-                  "recordings; an upper bound when no scene makes a pixel burst)",
-                  f"    refractory_ns: {int(round(r.value * 1e9, -3))}"]
-    lines += ["    noise:"]
+    if ref is None:
+        return []
+    r = ref.refractory
+    return [f"    # {r.value * 1e3:.3g} +- {r.std * 1e3:.2g} ms, the 0.1% quantile of "
+            f"a pixel's inter-event intervals in {_name(ref)} (the smallest over the "
+            "recordings; an upper bound when no scene makes a pixel burst)",
+            f"    refractory_ns: {int(round(r.value * 1e9, -3))}"]
+
+
+def _noise_lines(cals: Sequence[Calibration]) -> list[str]:
+    """The ``noise`` section: background activity from the quietest recording, hot pixels
+    from the one with the fewest."""
+    lines = []
     quiet = _pick(cals, lambda c: c.background.rate_hz.value)
     if quiet is not None:
         bg = quiet.background
@@ -236,8 +256,7 @@ def preset_yaml(cals: Calibration | Sequence[Calibration], command: str = "") ->
               + (f"; median {hot.rate_hz:.3g} Hz" if hot.mask.any() else ""),
               f"      hot_pixel_fraction: {_g(hot.fraction)}",
               f"      hot_pixel_rate_hz: {_g(hot.rate_hz) if hot.mask.any() else 0.0}"]
-    lines += ["    flicker:"] + _flicker_lines(cals, with_thr)
-    return "\n".join(lines) + "\n"
+    return lines
 
 
 def _threshold_lines(cals: Sequence[Calibration]) -> list[str]:

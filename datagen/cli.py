@@ -12,7 +12,7 @@ from pathlib import Path
 from datagen.config import DatagenConfig
 from datagen.shard import find_shards
 from esim_lite.core.dataconf import ConfigError, load_config
-from esim_lite.geometry.camera import SCALES
+from esim_lite.core.scales import SCALES
 
 log = logging.getLogger("datagen")
 

@@ -446,12 +446,7 @@ def thresholds(events: Events, frames: Frames, log_eps: float = 1e-3,
         raise ValueError(f"frames {frames.hw} and events {events.sensor_hw} differ in size")
     h, w = events.sensor_hw
     img = frames.intensity.reshape(len(frames), -1)
-    lo, hi = exposed
-    good = np.all((img >= lo) & (img <= hi), axis=0)
-    moving = np.abs(np.diff(np.log(log_eps + img.astype(np.float64)), axis=0)).sum(0)
-    good &= moving >= min_change  # chosen by the frames alone: no bias on the counts
-    if exclude is not None:
-        good &= ~exclude.ravel()
+    good = _fit_pixels(img, log_eps, exposed, min_change, exclude)
     inside = (events.t_ns > frames.t_ns[0]) & (events.t_ns <= frames.t_ns[-1])
     pix = events.y[inside].astype(np.int64) * w + events.x[inside]
     on = events.p[inside] > 0
@@ -462,13 +457,8 @@ def thresholds(events: Events, frames: Frames, log_eps: float = 1e-3,
         raise ValueError("no pixel well exposed in every frame fired both ON and OFF events "
                          "between the first and last frame")
     logs = np.log(log_eps + img[:, use].astype(np.float64))
-    span_s = (frames.t_ns[-1] - frames.t_ns[0]) * 1e-9
-    noise_on = noise_off = 0.0
-    if background is not None and math.isfinite(background.rate_hz.value):
-        share = background.on_fraction.value if math.isfinite(
-            background.on_fraction.value) else 0.5
-        noise_on = background.rate_hz.value * share * span_s
-        noise_off = background.rate_hz.value * (1 - share) * span_s
+    noise_on, noise_off = _background_counts(background,
+                                             (frames.t_ns[-1] - frames.t_ns[0]) * 1e-9)
 
     def signal(pick: np.ndarray) -> tuple[float, float]:
         return (max(n_on[use][pick].sum() - noise_on * len(pick), 1.0),
@@ -483,24 +473,60 @@ def thresholds(events: Events, frames: Frames, log_eps: float = 1e-3,
         pick = rng.integers(0, len(use), len(use))
         boot.append(_match(logs[:, pick], *signal(pick), phase[pick], rounds=4))
     pos_std, neg_std = (float(v) for v in np.std(np.array(boot), axis=0))
-    # per-pixel gains on each half of the frames: replayed / observed counts
+    mismatch, pixels = _mismatch(logs, c_pos, c_neg, phase, frames, events.t_ns[inside],
+                                 h * w, pix, use)
+    return Thresholds(Estimate(float(c_pos), pos_std), Estimate(float(c_neg), neg_std),
+                      mismatch, len(frames) - 1, pixels)
+
+
+def _fit_pixels(img: np.ndarray, log_eps: float, exposed: tuple[float, float],
+                min_change: float, exclude: np.ndarray | None) -> np.ndarray:
+    """bool[H * W]: the pixels the thresholds are fitted on (``img``: [T, H * W] frames):
+    well exposed in every frame, their log intensity moving at least ``min_change`` in
+    all, not in ``exclude``. Chosen by the frames alone: no bias on the counts."""
+    lo, hi = exposed
+    good = np.all((img >= lo) & (img <= hi), axis=0)
+    moving = np.abs(np.diff(np.log(log_eps + img.astype(np.float64)), axis=0)).sum(0)
+    good &= moving >= min_change
+    if exclude is not None:
+        good &= ~exclude.ravel()
+    return good
+
+
+def _background_counts(background: BackgroundActivity | None, span_s: float
+                       ) -> tuple[float, float]:
+    """ON and OFF events per pixel that ``background`` activity fires in ``span_s``."""
+    if background is None or not math.isfinite(background.rate_hz.value):
+        return 0.0, 0.0
+    share = background.on_fraction.value if math.isfinite(
+        background.on_fraction.value) else 0.5
+    return (background.rate_hz.value * share * span_s,
+            background.rate_hz.value * (1 - share) * span_s)
+
+
+def _mismatch(logs: np.ndarray, c_pos: float, c_neg: float, phase: np.ndarray,
+              frames: Frames, t_ns: np.ndarray, size: int, pix: np.ndarray, use: np.ndarray
+              ) -> tuple[Estimate, int]:
+    """The spread of thresholds between pixels (std / mean) and the pixels it rests on: the
+    covariance of per-pixel gains (replayed / observed counts) on the first and on the
+    second half of the frames, whose fitting noise is independent. ``t_ns``, ``pix``: the
+    times and flat pixel indices (of ``size``) of the events between the first and last
+    frame; ``use``: the fitted pixels, the columns of ``logs``."""
     mid_t = frames.t_ns[len(frames) // 2]
     gains = []
-    for part, sel in ((slice(0, len(frames) // 2 + 1), events.t_ns[inside] <= mid_t),
-                      (slice(len(frames) // 2, None), events.t_ns[inside] > mid_t)):
-        obs = np.bincount(pix[sel], minlength=h * w).astype(float)[use]
+    for part, sel in ((slice(0, len(frames) // 2 + 1), t_ns <= mid_t),
+                      (slice(len(frames) // 2, None), t_ns > mid_t)):
+        obs = np.bincount(pix[sel], minlength=size).astype(float)[use]
         r_on, r_off = replay_counts(logs[part], c_pos, c_neg, phase)
         rep = r_on + r_off
         with np.errstate(invalid="ignore", divide="ignore"):
             gains.append(np.where((obs >= 4) & (rep >= 4), rep / obs, np.nan))
     both = np.isfinite(gains[0]) & np.isfinite(gains[1])
-    if both.sum() >= 20:
-        g0, g1 = gains[0][both], gains[1][both]
-        cov = float(np.mean((g0 - g0.mean()) * (g1 - g1.mean())))
-        scale = float(np.mean(np.concatenate([g0, g1])))
-        spread = math.sqrt(max(cov, 0.0)) / scale
-        spread_std = float(np.std(g0 - g1) / math.sqrt(2 * both.sum())) / scale
-    else:
-        spread, spread_std = math.nan, math.nan
-    return Thresholds(Estimate(float(c_pos), pos_std), Estimate(float(c_neg), neg_std),
-                      Estimate(spread, spread_std), len(frames) - 1, int(both.sum()))
+    if both.sum() < 20:
+        return Estimate(math.nan, math.nan), int(both.sum())
+    g0, g1 = gains[0][both], gains[1][both]
+    cov = float(np.mean((g0 - g0.mean()) * (g1 - g1.mean())))
+    scale = float(np.mean(np.concatenate([g0, g1])))
+    spread = math.sqrt(max(cov, 0.0)) / scale
+    spread_std = float(np.std(g0 - g1) / math.sqrt(2 * both.sum())) / scale
+    return Estimate(spread, spread_std), int(both.sum())

@@ -200,16 +200,13 @@ class ShardWriter:
         if unknown:
             raise ValueError(f"unknown ground truth kind(s) {unknown} (expected any of "
                              f"{', '.join(GROUND_TRUTH_KINDS)})")
-        index, seed, thresholds = spec.index, spec.seed, spec.thresholds
-        texture, trajectory = spec.texture_name, spec.trajectory
-        scene_size_m = (spec.background.width_m, spec.background.height_m)
-        texture_hw = spec.background.texture_hw
-        g = self.file.create_group(sequence_name(index))
+        thresholds = spec.thresholds
+        g = self.file.create_group(sequence_name(spec.index))
         self._group, lr = g, cameras["lr"]
         self._dtype = frame_dtype(thresholds.min_threshold)
-        g.attrs.update({"sensor_resolution": [lr.height, lr.width], "index": index,
-                        "seed": seed, "log_eps": log_eps, "renderer": renderer,
-                        "texture": texture, "frame_dtype": self._dtype.name,
+        g.attrs.update({"sensor_resolution": [lr.height, lr.width], "index": spec.index,
+                        "seed": spec.seed, "log_eps": log_eps, "renderer": renderer,
+                        "texture": spec.texture_name, "frame_dtype": self._dtype.name,
                         "contrast_threshold_pos": thresholds.pos,
                         "contrast_threshold_neg": thresholds.neg})
         ev = g.create_group("events")
@@ -217,33 +214,10 @@ class ShardWriter:
                             ("ps", np.uint8)):
             ev.create_dataset(name, (0,), dtype, maxshape=(None,), chunks=(EVENT_CHUNK,),
                               **_COMPRESSION)
-        fr = g.create_group("frames")
-        for name, cam in cameras.items():
-            fr.create_dataset(name, (0, cam.height, cam.width), self._dtype,
-                              maxshape=(None, cam.height, cam.width),
-                              chunks=(1, cam.height, cam.width), **_COMPRESSION)
-            c = g.create_group(f"cameras/{name}")
-            c.attrs.update({k: getattr(cam, k) for k in ("fx", "fy", "cx", "cy", "width",
-                                                         "height")})
         self._truth = tuple(k for k in GROUND_TRUTH_KINDS if k in ground_truth)
-        for name, cam in cameras.items():
-            for kind in self._truth:
-                shape = (2, cam.height, cam.width) if kind == "flow" else (cam.height, cam.width)
-                fr.create_dataset(ground_truth_name(kind, name), (0, *shape),
-                                  _GROUND_TRUTH_DTYPE[kind], maxshape=(None, *shape),
-                                  chunks=(1, *shape), **_COMPRESSION)
-        fr.create_dataset("ts", (0,), np.float64, maxshape=(None,))
-        fr.create_dataset("event_idx", (0,), np.int64, maxshape=(None,))
-        fr.create_dataset("poses", (0, 8), np.float64, maxshape=(None, 8))
+        self._create_frames(g, cameras)
         g.create_dataset("poses", (0, 8), np.float64, maxshape=(None, 8), chunks=(1024, 8))
-        sc = g.create_group("scene")
-        sc.attrs.update({"width_m": scene_size_m[0], "height_m": scene_size_m[1],
-                         "texture_hw": list(texture_hw)})
-        tr = g.create_group("trajectory")
-        tr.create_dataset("positions", data=trajectory.positions)
-        tr.create_dataset("rotations", data=trajectory.rotations)
-        tr.attrs.update({"knot_spacing_s": trajectory.knot_spacing_s,
-                         "duration_s": trajectory.duration_s})
+        self._write_scene_and_trajectory(g, spec)
         if isinstance(spec.scene, DynamicScene):  # a configuration with moving objects
             self._write_objects(g, spec)
         if spec.sensor_drawn:  # a configuration with sensor ranges
@@ -254,6 +228,40 @@ class ShardWriter:
             th.create_dataset("neg_map", data=thresholds.neg_map.astype(np.float32))
         self._n_events = self._n_pos = self._n_pending = 0
         self._pending: list[Events] = []
+
+    def _create_frames(self, g: h5py.Group, cameras: dict[str, Intrinsics]) -> None:
+        """The empty ``frames`` group (each camera's frames, then its ground truth of the
+        kinds in ``self._truth``, then times, event indices and poses) and ``cameras``."""
+        fr = g.create_group("frames")
+        for name, cam in cameras.items():
+            fr.create_dataset(name, (0, cam.height, cam.width), self._dtype,
+                              maxshape=(None, cam.height, cam.width),
+                              chunks=(1, cam.height, cam.width), **_COMPRESSION)
+            c = g.create_group(f"cameras/{name}")
+            c.attrs.update({k: getattr(cam, k) for k in ("fx", "fy", "cx", "cy", "width",
+                                                         "height")})
+        for name, cam in cameras.items():
+            for kind in self._truth:
+                shape = (2, cam.height, cam.width) if kind == "flow" else (cam.height, cam.width)
+                fr.create_dataset(ground_truth_name(kind, name), (0, *shape),
+                                  _GROUND_TRUTH_DTYPE[kind], maxshape=(None, *shape),
+                                  chunks=(1, *shape), **_COMPRESSION)
+        fr.create_dataset("ts", (0,), np.float64, maxshape=(None,))
+        fr.create_dataset("event_idx", (0,), np.int64, maxshape=(None,))
+        fr.create_dataset("poses", (0, 8), np.float64, maxshape=(None, 8))
+
+    @staticmethod
+    def _write_scene_and_trajectory(g: h5py.Group, spec: SequenceSpec) -> None:
+        """The background plane's size (``scene``) and the camera's ``trajectory``."""
+        background, trajectory = spec.background, spec.trajectory
+        sc = g.create_group("scene")
+        sc.attrs.update({"width_m": background.width_m, "height_m": background.height_m,
+                         "texture_hw": list(background.texture_hw)})
+        tr = g.create_group("trajectory")
+        tr.create_dataset("positions", data=trajectory.positions)
+        tr.create_dataset("rotations", data=trajectory.rotations)
+        tr.attrs.update({"knot_spacing_s": trajectory.knot_spacing_s,
+                         "duration_s": trajectory.duration_s})
 
     @staticmethod
     def _write_objects(g: h5py.Group, spec: SequenceSpec) -> None:

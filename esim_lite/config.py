@@ -5,9 +5,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
+from esim_lite.core.scales import check_scales
 from esim_lite.events.sampling import SamplingConfig
 from esim_lite.events.simulator import EventConfig
-from esim_lite.geometry.camera import CameraRig, Intrinsics, check_scales
+from esim_lite.geometry.camera import CameraRig, Intrinsics
 from esim_lite.geometry.object_sampling import ObjectsConfig
 from esim_lite.geometry.trajectory import TrajectoryConfig
 from esim_lite.render.renderer import RenderConfig

@@ -163,9 +163,10 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
     try:
         from datagen.recording import open_recording
         from model import checkpoint
+        from model.calibration import simulated_inputs
         from model.inference.pretrained import resolve
         from model.inference.reconstruct import Reconstructor, plan_outputs, reconstruct
-        from model.inference.stack_size import activity_for_rule
+        from model.stack_size import activity_for_rule
 
         _check_out_folder(args.out)
         ckpt = resolve(args.checkpoint, args.scale)
@@ -176,7 +177,7 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
                                      args.events_per_stack)
         model = Reconstructor.from_state(state, str(ckpt), rec.sensor_hw, args.mode,
                                          args.first_pass, args.events_per_stack, args.device,
-                                         args.engine, activity)
+                                         args.engine, activity, simulated_inputs)
         model = replace(model, fill=fill_config(args))
         plan = plan_outputs(rec, model.stacks, args.at, args.rate, args.every)
         result = reconstruct(rec, model, args.out, plan, args.mp4, not args.no_progress,
@@ -229,6 +230,7 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
+        from model.calibration import simulated_inputs
         from model.inference.evaluate import BASELINES, EvalOptions, evaluate
         from model.inference.pretrained import resolve
 
@@ -242,7 +244,7 @@ def evaluate_main(argv: list[str] | None = None) -> int:
                               fill=fill_config(args))
         rows = evaluate(resolve(args.checkpoint, args.scale), args.out, args.data,
                         args.recording, options, args.first_pass, args.split,
-                        _sensor(args.sensor_size), args.engine)
+                        _sensor(args.sensor_size), args.engine, simulated_inputs)
     except (ConfigError, FileNotFoundError, ValueError) as exc:
         print(f"evaluate: error: {exc}", file=sys.stderr)
         return 2

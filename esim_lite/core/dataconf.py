@@ -44,38 +44,55 @@ def _convert(tp: Any, value: Any, source: str, key: str) -> Any:
             _fail(source, key, f"expected a mapping for {tp.__name__}, got {value!r}")
         return from_mapping(tp, value, source=source, prefix=key)
     if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        errors = []
-        for arg in args:
-            if arg is type(None):
-                continue
-            try:
-                return _convert(arg, value, source, key)
-            except ConfigError as exc:
-                errors.append(str(exc))
-        _fail(source, key, f"{value!r} matches none of {args}")
+        return _convert_union(args, value, source, key)
     if origin is typing.Literal:
         if value not in args:
             _fail(source, key, f"{value!r} is not one of {list(args)}")
         return value
     if origin in (tuple, list):
-        if isinstance(value, (str, bytes)) or not isinstance(value, (list, tuple)):
-            _fail(source, key, f"expected a list, got {value!r}")
-        if origin is tuple and args and args[-1] is not Ellipsis:
-            if len(value) != len(args):
-                _fail(source, key, f"expected {len(args)} items, got {len(value)}")
-            return tuple(_convert(a, v, source, f"{key}[{i}]")
-                         for i, (a, v) in enumerate(zip(args, value)))
-        item = args[0] if args else Any
-        items = [_convert(item, v, source, f"{key}[{i}]") for i, v in enumerate(value)]
-        return tuple(items) if origin is tuple else items
+        return _convert_sequence(origin, args, value, source, key)
     if origin in (dict, Mapping):
         if not isinstance(value, Mapping):
             _fail(source, key, f"expected a mapping, got {value!r}")
         kt, vt = args if args else (Any, Any)
         return {_convert(kt, k, source, key): _convert(vt, v, source, f"{key}.{k}")
                 for k, v in value.items()}
+    return _convert_scalar(tp, value, source, key)
+
+
+def _convert_union(args: tuple, value: Any, source: str, key: str) -> Any:
+    """``value`` as the first member of the union ``args`` that takes it (None if allowed)."""
+    if value is None and type(None) in args:
+        return None
+    errors = []
+    for arg in args:
+        if arg is type(None):
+            continue
+        try:
+            return _convert(arg, value, source, key)
+        except ConfigError as exc:
+            errors.append(str(exc))
+    _fail(source, key, f"{value!r} matches none of {args}")
+
+
+def _convert_sequence(origin: type, args: tuple, value: Any, source: str, key: str
+                      ) -> tuple | list:
+    """A YAML list as ``tuple[...]`` (fixed length or ``...``) or ``list[...]``."""
+    if isinstance(value, (str, bytes)) or not isinstance(value, (list, tuple)):
+        _fail(source, key, f"expected a list, got {value!r}")
+    if origin is tuple and args and args[-1] is not Ellipsis:
+        if len(value) != len(args):
+            _fail(source, key, f"expected {len(args)} items, got {len(value)}")
+        return tuple(_convert(a, v, source, f"{key}[{i}]")
+                     for i, (a, v) in enumerate(zip(args, value)))
+    item = args[0] if args else Any
+    items = [_convert(item, v, source, f"{key}[{i}]") for i, v in enumerate(value)]
+    return tuple(items) if origin is tuple else items
+
+
+def _convert_scalar(tp: Any, value: Any, source: str, key: str) -> Any:
+    """``value`` as a bool, int, float or str (strictly: no bool for a number, no number
+    for a string), or checked to be an instance of any other class ``tp``."""
     if tp is bool:
         if not isinstance(value, bool):
             _fail(source, key, f"expected true/false, got {value!r}")

@@ -105,39 +105,56 @@ def torch_step(l0: torch.Tensor, l1: torch.Tensor, ref: torch.Tensor, last_t: to
         return event_buffers(0, dev)
     owner = torch.repeat_interleave(torch.arange(idx.numel(), device=dev), counts,
                                     output_size=total)
-    level = (torch.arange(total, device=dev) - starts[owner] + 1).to(torch.float64)
-    slope = new - old
-    rising = (slope * pol > 0)[owner]
-    frac = (r[owner] + level * c[owner] - old[owner]) / slope[owner]
-    frac = torch.where(rising, frac, torch.zeros((), dtype=torch.float64, device=dev))
-    frac = frac.clamp(0.0, 1.0)
-    t = t0 + torch.floor(frac * float(t1 - t0) + 0.5).to(torch.int64)
-
-    if refractory_ns == 0:
-        # Within a pixel the times do not decrease, so every event after the first kept
-        # one is kept too and the rule reduces to a comparison with the previous step's.
-        keep = t - last_a[owner] >= 0
-        tail = (ends - 1).clamp(min=0)
-        fired = (counts > 0) & keep[tail]
-        last_flat[idx] = torch.where(fired, t[tail], last_a)
-    else:
-        keep = torch.empty(total, dtype=torch.bool, device=dev)
-        last = last_a.clone()
-        for j in range(int(counts.max())):
-            m = torch.nonzero(counts > j).squeeze(1)
-            pos = starts[m] + j
-            tj = t[pos]
-            ok = tj - last[m] >= refractory_ns
-            keep[pos] = ok
-            last[m] = torch.where(ok, tj, last[m])
-        last_flat[idx] = last
-
+    t = _level_times(owner, starts, total, pol, c, r, old, new, t0, t1)
+    keep, last = _refractory(t, owner, counts, starts, ends, last_a, refractory_ns)
+    last_flat[idx] = last
     pix = idx[owner[keep]]
     t = t[keep]
     order = torch.sort(t, stable=True).indices
     pix = pix[order]
     return ((pix % w).to(torch.int16), (pix // w).to(torch.int16), t[order],
             pol[owner[keep]][order].to(torch.int8))
+
+
+def _level_times(owner: torch.Tensor, starts: torch.Tensor, total: int, pol: torch.Tensor,
+                 c: torch.Tensor, r: torch.Tensor, old: torch.Tensor, new: torch.Tensor,
+                 t0: int, t1: int) -> torch.Tensor:
+    """int64 (total,): the time of every level crossed, one entry per event of the active
+    pixel ``owner`` (levels ``1..k`` in order), interpolated linearly between the samples
+    (``old`` at ``t0``, ``new`` at ``t1``) from the pixel's reference ``r`` and signed
+    threshold ``c``."""
+    dev = owner.device
+    level = (torch.arange(total, device=dev) - starts[owner] + 1).to(torch.float64)
+    slope = new - old
+    rising = (slope * pol > 0)[owner]
+    frac = (r[owner] + level * c[owner] - old[owner]) / slope[owner]
+    frac = torch.where(rising, frac, torch.zeros((), dtype=torch.float64, device=dev))
+    frac = frac.clamp(0.0, 1.0)
+    return t0 + torch.floor(frac * float(t1 - t0) + 0.5).to(torch.int64)
+
+
+def _refractory(t: torch.Tensor, owner: torch.Tensor, counts: torch.Tensor,
+                starts: torch.Tensor, ends: torch.Tensor, last_a: torch.Tensor,
+                refractory_ns: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(keep, last): bool (total,), which events the refractory rule lets through, and the
+    active pixels' new time of their last emitted event (``last_a`` where none is)."""
+    if refractory_ns == 0:
+        # Within a pixel the times do not decrease, so every event after the first kept
+        # one is kept too and the rule reduces to a comparison with the previous step's.
+        keep = t - last_a[owner] >= 0
+        tail = (ends - 1).clamp(min=0)
+        fired = (counts > 0) & keep[tail]
+        return keep, torch.where(fired, t[tail], last_a)
+    keep = torch.empty(t.numel(), dtype=torch.bool, device=t.device)
+    last = last_a.clone()
+    for j in range(int(counts.max())):
+        m = torch.nonzero(counts > j).squeeze(1)
+        pos = starts[m] + j
+        tj = t[pos]
+        ok = tj - last[m] >= refractory_ns
+        keep[pos] = ok
+        last[m] = torch.where(ok, tj, last[m])
+    return keep, last
 
 
 class TorchEventCamera:

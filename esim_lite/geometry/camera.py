@@ -13,28 +13,11 @@ an axis covers exactly LR interval ``[(k)/s - 0.5, (k+1)/s - 0.5]``:
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 
-SCALES = (2, 4, 8)
-"""Super-resolution factors: the HR cameras a rig can carry (datagen renders them), the
-factors the network has projection kernels for, and the ``--scale`` choices of every CLI."""
-
-
-def hr_camera(scale: int) -> str:
-    """Name of the HR intensity camera ``scale`` times the event camera's resolution."""
-    return f"hr_x{scale}"
-
-
-def check_scales(scales: Iterable[int], what: str = "scale") -> tuple[int, ...]:
-    """``scales`` as a tuple if every one is in :data:`SCALES`, else a ValueError."""
-    out = tuple(scales)
-    if not out or any(s not in SCALES for s in out):
-        raise ValueError(f"{what} must be {', '.join(map(str, SCALES[:-1]))} or {SCALES[-1]} "
-                         f"(or several of them); got {', '.join(map(str, out)) or 'none'}")
-    return out
+from esim_lite.core.scales import check_scales, hr_camera
 
 
 @dataclass(frozen=True)
@@ -98,6 +81,20 @@ class Intrinsics:
         us = np.array([-0.5, self.width - 0.5, self.width - 0.5, -0.5])
         vs = np.array([-0.5, -0.5, self.height - 0.5, self.height - 0.5])
         return np.stack([(us - self.cx) / self.fx, (vs - self.cy) / self.fy, np.ones(4)], 1)
+
+
+def sample_grids(cameras: dict[str, Intrinsics], supersample: dict[str, int]
+                 ) -> tuple[dict[str, int], dict[str, Intrinsics]]:
+    """Per camera, the sub-pixel grid side (1 where ``supersample`` names none) and the
+    ``s``-times finer camera whose pixel centres are the sample points.
+
+    Raises:
+        ValueError: a factor below 1.
+    """
+    factors = {name: int(supersample.get(name, 1)) for name in cameras}
+    if any(s < 1 for s in factors.values()):
+        raise ValueError(f"supersample factors must be >= 1, got {factors}")
+    return factors, {name: cam.scaled(factors[name]) for name, cam in cameras.items()}
 
 
 @dataclass(frozen=True)

@@ -13,10 +13,9 @@ from collections.abc import Sequence
 import cv2
 import numpy as np
 
-from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.camera import Intrinsics, sample_grids
 from esim_lite.geometry.pose import Pose
 from esim_lite.geometry.scene import PlanarScene
-from esim_lite.render.renderer import sample_grids
 
 
 class HomographyRenderer:

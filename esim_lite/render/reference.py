@@ -23,7 +23,7 @@ from collections.abc import Sequence
 import numba
 import numpy as np
 
-from esim_lite.geometry.camera import Intrinsics
+from esim_lite.geometry.camera import Intrinsics, sample_grids
 from esim_lite.geometry.objects import ALPHA_CUTOFF, DynamicScene
 from esim_lite.geometry.pose import Pose
 from esim_lite.geometry.visibility import (
@@ -36,7 +36,6 @@ from esim_lite.geometry.visibility import (
     shade,
     trace,
 )
-from esim_lite.render.renderer import sample_grids
 
 
 class ReferenceRenderer:

@@ -55,20 +55,6 @@ class RenderConfig:
             raise ValueError("supersample factors must be >= 1")
 
 
-def sample_grids(cameras: dict[str, Intrinsics], supersample: dict[str, int]
-                 ) -> tuple[dict[str, int], dict[str, Intrinsics]]:
-    """Per camera, the sub-pixel grid side (1 where ``supersample`` names none) and the
-    ``s``-times finer camera whose pixel centres are the sample points.
-
-    Raises:
-        ValueError: a factor below 1.
-    """
-    factors = {name: int(supersample.get(name, 1)) for name in cameras}
-    if any(s < 1 for s in factors.values()):
-        raise ValueError(f"supersample factors must be >= 1, got {factors}")
-    return factors, {name: cam.scaled(factors[name]) for name, cam in cameras.items()}
-
-
 def make_renderer(scene: PlanarScene | DynamicScene, cameras: dict[str, Intrinsics],
                   config: RenderConfig, texels_per_sample: dict[str, float] | None = None
                   ) -> Renderer:

@@ -30,7 +30,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from esim_lite.geometry.camera import check_scales
+from esim_lite.core.scales import check_scales
 from model.archs.blocks import ContextBranch, SubPixelLift, conv, deconv, down, res_stack
 from model.archs.flow import FlowNet
 

@@ -29,7 +29,7 @@ class DataConfig:
         stack_rule: SBN events per stack per sequence. ``fixed`` (the paper, and the first
             shipped models): ``stacks.events_per_stack`` everywhere.
             ``active``: the number reconstruction's active-pixel rule gives a recording of
-            the sequence's activity (model/inference/stack_size.py: ``stacks`` per fully
+            the sequence's activity (model/stack_size.py: ``stacks`` per fully
             active sensor, times the share of pixels firing >= 2 events in the first
             second), so a static camera watching small objects trains on the short, sparse
             stacks a real one is given, not on stacks that span seconds of sensor noise.

@@ -23,6 +23,7 @@ import torch
 from torch.utils.data import Dataset
 
 from datagen.shard import ShardReader
+from esim_lite.core.scales import hr_camera
 from esim_lite.core.stacking import (
     StackConfig,
     stack_fit_warnings,
@@ -30,13 +31,12 @@ from esim_lite.core.stacking import (
     stack_to_input,
     stacks_around,
 )
-from esim_lite.geometry.camera import hr_camera
 from esim_lite.geometry.motion import planar_flow
 from esim_lite.geometry.pose import Pose
 from model.data.classical_flow import stack_flows
 from model.data.config import DataConfig
 from model.data.input_cache import InputCache
-from model.inference.stack_size import ACTIVE_WINDOW_S, activity_of, choose_stack
+from model.stack_size import ACTIVE_WINDOW_S, activity_of, choose_stack
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +60,7 @@ class SampleRef:
 def sequence_stacks(reader: ShardReader, sequence: str, data: DataConfig) -> StackConfig:
     """The SBN settings of one sequence's samples under ``data.stack_rule``: ``fixed``, the
     configured ones; ``active``, reconstruction's active-pixel rule applied to the
-    sequence's first second (:func:`model.inference.stack_size.choose_stack`), the
+    sequence's first second (:func:`model.stack_size.choose_stack`), the
     sequence's sensor counting as the trained one."""
     if data.stack_rule == "fixed":
         return data.stacks

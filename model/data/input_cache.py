@@ -39,8 +39,8 @@ from pathlib import Path
 import numpy as np
 
 from datagen.shard import ShardReader
+from esim_lite.core.scales import hr_camera
 from esim_lite.core.stacking import StackConfig, stacks_around
-from esim_lite.geometry.camera import hr_camera
 from model.data.classical_flow import classical_flow, stack_to_gray
 
 log = logging.getLogger(__name__)

@@ -12,8 +12,9 @@ tensors ``(B, n, c, H, W)``, ``(B, c_central, H, W)``, ``(B, n, 2, H, W)``, and 
   (static shapes run faster than dynamic ones) and for any other size on first use;
   precision pinned to float32 (on CPUs with bf16 units OpenVINO would otherwise use them).
 - ``openvino-int8``: the same, on a graph quantised to int8 by NNCF
-  (:mod:`model.inference.quantize`, calibrated on simulated inputs). Faster, but its
-  outputs differ from float32 by more than 1/255; never chosen by ``auto``.
+  (:mod:`model.inference.quantize`, calibrated on the inputs of the caller's ``calibrate``:
+  the CLI's are simulated). Faster, but its outputs differ from float32 by more than 1/255;
+  never chosen by ``auto``.
 - ``auto``: ``torch`` on a GPU; on a CPU the first installed of :data:`PREFERENCE`
   (OpenVINO was the fastest, ONNX Runtime second, on the 2-core CPU of
   ``docs/benchmarks.md``); when that engine fails to export or compile, a warning and
@@ -194,17 +195,18 @@ class OpenVinoEngine:
 
 def load_engine(engine: str, net: E2SRI, device: torch.device,
                 sensor_hw: tuple[int, int] | None = None, cache: Path | None = None,
-                stack_rule: str = "fixed"
+                stack_rule: str = "fixed", calibrate: quantize.CalibrationSource | None = None
                 ) -> TorchEngine | OnnxRuntimeEngine | OpenVinoEngine:
     """``net``'s forward pass on ``engine`` (``auto`` or one of :data:`ENGINES`), exported
     into (or reused from) the cache folder ``cache`` (default: :func:`cache_root`).
     ``stack_rule``: the stack rule ``net`` was trained with (``data.stack_rule``), which
-    the int8 calibration follows."""
+    the int8 calibration follows; ``calibrate``: what makes the int8 calibration inputs
+    (``openvino-int8`` needs it; called only when the int8 graph is exported)."""
     chosen = choose(engine, device)
     if chosen == "torch":
         return TorchEngine(net)
     try:
-        return _compiled(chosen, net, sensor_hw, cache, stack_rule)
+        return _compiled(chosen, net, sensor_hw, cache, stack_rule, calibrate)
     except Exception as exc:
         if engine != "auto":
             raise
@@ -213,14 +215,21 @@ def load_engine(engine: str, net: E2SRI, device: torch.device,
 
 
 def _compiled(engine: str, net: E2SRI, sensor_hw: tuple[int, int] | None,
-              cache: Path | None, stack_rule: str = "fixed"
+              cache: Path | None, stack_rule: str = "fixed",
+              calibrate: quantize.CalibrationSource | None = None
               ) -> OnnxRuntimeEngine | OpenVinoEngine:
     suffix, export = _EXPORTS[engine]
     calibration = replace(quantize.DEFAULT_CALIBRATION, stack_rule=stack_rule)
     key = CacheKey(weights_digest(net, checkpoint.net_args(net)), engine,
                    _engine_version(engine, calibration), suffix)
-    build = (functools.partial(export, net, calibration=calibration)
-             if engine == "openvino-int8" else functools.partial(export, net))
+    if engine == "openvino-int8":
+        if calibrate is None:
+            raise ValueError("engine openvino-int8 needs calibration inputs: pass calibrate "
+                             "(e.g. model.calibration.simulated_inputs)")
+        build = functools.partial(export, net,
+                                  inputs=functools.partial(calibrate, net, calibration))
+    else:
+        build = functools.partial(export, net)
     threads = torch.get_num_threads()
 
     def make(path: Path) -> OnnxRuntimeEngine | OpenVinoEngine:

@@ -22,7 +22,7 @@ events fired with spatial support (:mod:`model.inference.observed`), with the af
 made inside it: what event-only methods can know, apart from what no event saw.
 
 Scoring real recordings: events per stack are chosen per recording
-(:mod:`model.inference.stack_size`; the active-pixel rule by default for real files, the
+(:mod:`model.stack_size`; the active-pixel rule by default for real files, the
 area rule for our shards); with ``exposure_average`` our outputs inside each APS frame's
 exposure window are averaged before scoring (:mod:`model.inference.exposure`; the
 baselines stay at the frame's timestamp).
@@ -50,7 +50,7 @@ from datagen.recording import Recording, open_recording
 from datagen.shard import ShardReader, find_shards
 from esim_lite.core.atomic import write_text
 from esim_lite.core.figures import contact_sheet, event_image, gray_to_rgb, write_png
-from esim_lite.geometry.camera import hr_camera
+from esim_lite.core.scales import hr_camera
 from model import checkpoint
 from model.archs.e2sri_arch import mode_of
 from model.data.dataset import index_samples
@@ -64,12 +64,13 @@ from model.inference.observed import (
     support_mask,
     upscale_mask,
 )
+from model.inference.quantize import CalibrationSource
 from model.inference.reconstruct import OutputPlan, Reconstructor, output_times
 from model.inference.references import CEILINGS, REFERENCES, reference_image
-from model.inference.stack_size import Rule, StackChoice, activity_for_rule
 from model.inference.temporal import reference_motion, temporally_consistent, warp_error
 from model.losses.lpips import LPIPS
 from model.metrics.image import mse, psnr, ssim
+from model.stack_size import Rule, StackChoice, activity_for_rule
 
 log = logging.getLogger(__name__)
 BASELINES = ("hf", "direct", "complementary")
@@ -80,7 +81,7 @@ class EvalOptions:
     """``normalize``: see the module doc; ``every``: evaluate every k-th eligible frame;
     ``max_frames`` per sequence; ``tc_weight``: weight of the warped previous output in the
     temporal post-process; ``stack_rule`` and ``events_per_stack`` choose the stacks
-    (:mod:`model.inference.stack_size`); ``exposure_average``: average our outputs over
+    (:mod:`model.stack_size`); ``exposure_average``: average our outputs over
     each APS frame's exposure window where the file stores it; ``references``: also score
     the information-free references and, with ``ceilings``, the whole-frame ceilings
     (:mod:`model.inference.references`); ``fill``: what our outputs get where no event
@@ -154,12 +155,14 @@ class SequenceOutputs:
 
 class ModelPool:
     """A checkpoint read once; its network (and engine) prepared once per sensor size, with
-    the events per stack chosen for each recording (``options.stack_rule``)."""
+    the events per stack chosen for each recording (``options.stack_rule``); ``calibrate``:
+    for an ``openvino-int8`` engine (:func:`model.inference.engines.load_engine`)."""
 
     def __init__(self, ckpt: str | Path, options: EvalOptions, first_pass: str | None = None,
-                 engine: str = "torch") -> None:
+                 engine: str = "torch", calibrate: CalibrationSource | None = None) -> None:
         self.ckpt, self.options, self.first_pass, self.engine = str(ckpt), options, \
             first_pass, engine
+        self.calibrate = calibrate
         self.state = checkpoint.load(ckpt)
         self.config = checkpoint.config_of(self.state, self.ckpt)
         self._by_hw: dict[tuple[int, int], Reconstructor] = {}
@@ -169,7 +172,7 @@ class ModelPool:
         if hw not in self._by_hw:
             self._by_hw[hw] = Reconstructor.from_state(
                 self.state, self.ckpt, hw, mode_of(self.config.model), self.first_pass,
-                engine=self.engine)
+                engine=self.engine, calibrate=self.calibrate)
         given = self.options.events_per_stack
         model = replace(self._by_hw[hw].with_stacks(given, activity_for_rule(
             rec, self.options.stack_rule, self.config.data.stack_rule, given)),
@@ -390,7 +393,8 @@ def _observed(seq: SequenceOutputs, preds: list[np.ndarray], targets: list[np.nd
 def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
              recordings: list[str] | None = None, options: EvalOptions | None = None,
              first_pass: str | None = None, split: Literal["val", "all"] = "val",
-             sensor_hw: tuple[int, int] | None = None, engine: str = "torch") -> list[dict]:
+             sensor_hw: tuple[int, int] | None = None, engine: str = "torch",
+             calibrate: CalibrationSource | None = None) -> list[dict]:
     """Evaluate on shards and/or real recordings with APS frames; writes ``metrics.csv``,
     ``metrics.md`` and ``figure.png`` into ``out``; returns the rows.
 
@@ -398,10 +402,11 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
     split (its validation set), ``all`` every sequence (a separate test set). Recordings
     without APS frames (``sensor_hw`` for formats that do not store it) are not scored:
     they appear in the figure as events | HF | ours. ``engine`` runs the network
-    (:mod:`model.inference.engines`)."""
+    (:mod:`model.inference.engines`; ``calibrate`` for ``openvino-int8``)."""
     options = options or EvalOptions()
     out = Path(out)
-    pool = ModelPool(ckpt, options, first_pass, engine)  # a refused checkpoint writes nothing
+    # a refused checkpoint writes nothing
+    pool = ModelPool(ckpt, options, first_pass, engine, calibrate)
     out.mkdir(parents=True, exist_ok=True)
     cfg = pool.config
     lpips_net = LPIPS()

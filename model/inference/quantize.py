@@ -18,7 +18,10 @@ quantised graph serves every recording and is exported once per weights (the cac
 the *training* half of its textures (the held-out test textures are never seen), rendered
 by the homography renderer, turned into network inputs exactly as training does
 (:class:`model.data.dataset.ShardSamples`: SBN stacks sized by the stack rule the model was
-trained with, and DIS flow).
+trained with, and DIS flow). Running a model never simulates, so this module only names the
+recipe (:class:`Calibration`); the inputs are made above ``inference/``
+(:func:`model.calibration.simulated_inputs`) and handed in as a :data:`CalibrationSource`,
+called only when an export is made.
 
 INT8 changes the outputs (unlike the float32 engines, which match torch within 1e-6): it is
 never chosen by ``--engine auto``, only when asked for. Its quality against float32 on the
@@ -30,12 +33,13 @@ from __future__ import annotations
 import logging
 import tempfile
 import warnings
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from model.archs.e2sri_arch import E2SRI, central_input
+from model.archs.e2sri_arch import E2SRI
 from model.inference import graph_export
 
 log = logging.getLogger(__name__)
@@ -83,51 +87,12 @@ class Calibration:
 DEFAULT_CALIBRATION = Calibration()
 """The recipe every int8 export uses (tests swap in a smaller one)."""
 
+Inputs = Sequence[dict[str, np.ndarray]]
+"""Calibration inputs: network inputs ``{"stacks", "central", "flows"}`` (batch 1, float32)."""
 
-def calibration_inputs(net: E2SRI, calibration: Calibration | None = None
-                       ) -> list[dict[str, np.ndarray]]:
-    """Network inputs ``{"stacks", "central", "flows"}`` (batch 1, float32) for ``net``,
-    simulated as the module doc says (``calibration``: default :data:`DEFAULT_CALIBRATION`)."""
-    calibration = calibration or DEFAULT_CALIBRATION
-    from datagen.config import DatagenConfig
-    from datagen.generate import plan_shards, write_shard
-    from esim_lite.core.dataconf import load_config
-    from model.data.config import DataConfig
-    from model.data.dataset import ShardSamples, index_samples
-
-    cfg = net.config
-    per_stack = 3000  # the training datasets' frame spacing: one stack per frame
-    config = load_config(DatagenConfig, None, values={
-        "simulation.camera.scales": [cfg.scale],
-        "simulation.render.backend": "homography",
-        "simulation.frames.count": calibration.frames,
-        "simulation.frames.every_events": per_stack,
-        "simulation.frames.tail_events": per_stack * (cfg.n_stacks // 2 + 1),
-        "textures.split": "train",
-        "sequences_per_shard": calibration.sequences})
-    data = DataConfig(crop=None, val_fraction=0.0, flow="dis",
-                      stack_rule=calibration.stack_rule)
-    with tempfile.TemporaryDirectory(prefix="e2sr-calibration-") as tmp:
-        plan = plan_shards(Path(tmp), calibration.sequences, calibration.sequences)[0]
-        write_shard(plan, config, calibration.seed, render_threads=1)
-        refs, _ = index_samples([plan.path], data, cfg.n_stacks, cfg.scale)
-        if not refs:
-            raise RuntimeError("the calibration sequences gave no samples")
-        pick = np.unique(np.linspace(0, len(refs) - 1, min(calibration.samples, len(refs)))
-                         .round().astype(int))
-        dataset = ShardSamples([refs[i] for i in pick], data, cfg.n_stacks, cfg.scale,
-                               train=False)
-        items = [dataset[i] for i in range(len(dataset))]
-    # a Duo-Pass model is calibrated on the LR frame in its first pass's place (same range)
-    as_net = cfg if cfg.central != "first_pass" else replace(cfg, central="aps")
-    out = []
-    for item in items:
-        batch = {k: v[None] for k, v in item.items()}
-        central = central_input(as_net, batch["stacks"], batch["flows"], batch["lr"], None)
-        out.append({"stacks": batch["stacks"].numpy(),
-                    "central": np.ascontiguousarray(central.numpy()),
-                    "flows": batch["flows"].numpy()})
-    return out
+CalibrationSource = Callable[[E2SRI, Calibration], Inputs]
+"""Makes a network's calibration inputs by a recipe: :func:`model.calibration.simulated_inputs`
+(which simulates, so it lives above ``inference/``)."""
 
 
 def kept_in_float(model) -> list[str]:
@@ -149,8 +114,9 @@ def kept_in_float(model) -> list[str]:
     return list(dict.fromkeys(first + last))
 
 
-def quantize_openvino(net: E2SRI, calibration: Calibration | None = None):
-    """``net`` as an int8 OpenVINO model (``openvino.Model``), calibrated as above."""
+def quantize_openvino(net: E2SRI, inputs: Callable[[], Inputs]):
+    """``net`` as an int8 OpenVINO model (``openvino.Model``), calibrated on ``inputs()``
+    (called once, after the float32 export)."""
     import nncf
     import openvino as ov
 
@@ -158,21 +124,21 @@ def quantize_openvino(net: E2SRI, calibration: Calibration | None = None):
         fp32 = Path(tmp) / "fp32.npz"
         graph_export.export_openvino(net, fp32)
         model = graph_export.read_openvino(fp32, ov.Core())
-    inputs = calibration_inputs(net, calibration)
+    calibration = list(inputs())
     names = [next(n for n in graph_export.INPUT_NAMES if n in p.get_names())
              for p in model.inputs]
-    dataset = nncf.Dataset(inputs, lambda d: [d[n] for n in names])
-    log.info("quantising the network to int8 on %d simulated inputs", len(inputs))
+    dataset = nncf.Dataset(calibration, lambda d: [d[n] for n in names])
+    log.info("quantising the network to int8 on %d calibration inputs", len(calibration))
     nncf.set_log_level(logging.ERROR)  # its per-layer notes and progress bars
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return nncf.quantize(model, dataset, subset_size=len(inputs),
+        return nncf.quantize(model, dataset, subset_size=len(calibration),
                              preset=nncf.QuantizationPreset.MIXED,
                              ignored_scope=nncf.IgnoredScope(names=kept_in_float(model),
                                                              validate=False))
 
 
-def export_openvino_int8(net: E2SRI, path: Path, calibration: Calibration | None = None
-                         ) -> None:
-    """Write the int8 model packed as :func:`graph_export.export_openvino` packs (``.npz``)."""
-    graph_export.save_openvino(quantize_openvino(net, calibration), path)
+def export_openvino_int8(net: E2SRI, path: Path, inputs: Callable[[], Inputs]) -> None:
+    """Write the int8 model, calibrated on ``inputs()``, packed as
+    :func:`graph_export.export_openvino` packs (``.npz``)."""
+    graph_export.save_openvino(quantize_openvino(net, inputs), path)

@@ -32,6 +32,7 @@ from model.inference.evaluate import (
 )
 from model.inference.exposure import exposure_stats
 from model.inference.observed import INVENTED_STEP
+from model.inference.quantize import CalibrationSource
 from model.inference.references import CEILINGS, SALT_AMPLITUDE, SALT_FRACTION
 from model.losses.lpips import LPIPS
 
@@ -98,17 +99,19 @@ def recording_name(path: Path) -> str:
 
 def run_benchmark(ckpt: str | Path, folder: str | Path, out: str | Path,
                   options: EvalOptions | None = None, engine: str = "auto",
-                  command: str = "") -> BenchmarkResult:
+                  command: str = "", calibrate: CalibrationSource | None = None
+                  ) -> BenchmarkResult:
     """Run and score every recording of ``folder`` (:func:`find_recordings`) with the model
     ``ckpt``; ``options.normalize`` is ignored (both of :data:`NORMALIZATIONS` are used;
     default options average over the APS exposures). Writes ``real_benchmark.md``, ``.csv``
-    and ``.png`` into ``out``; ``command`` is quoted at the top of the table."""
+    and ``.png`` into ``out``; ``command`` is quoted at the top of the table; ``calibrate``:
+    for an ``openvino-int8`` engine."""
     start = time.perf_counter()
     found = find_recordings(folder)
     options = options or EvalOptions(exposure_average=True)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    pool = ModelPool(ckpt, options, engine=engine)
+    pool = ModelPool(ckpt, options, engine=engine, calibrate=calibrate)
     sequences, reports, engines = [], [], set()
     for path, hw in [(p, None) for p in found.scored] + [(p, ECD_SENSOR_HW) for p in found.shown]:
         rec = open_recording(path, hw)

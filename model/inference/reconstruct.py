@@ -7,7 +7,7 @@ stack is computed, and the network runs on the whole sensor (it is fully convolu
 so any sensor size works). Events stream through a sliding window: memory does not grow
 with the length of the recording.
 
-The number of events per stack (:mod:`model.inference.stack_size`): given, else scaled from
+The number of events per stack (:mod:`model.stack_size`): given, else scaled from
 what the model was trained with by the recording's active pixels (real recordings) or by
 the sensor area (the paper: ~3,000 per stack at 128x128 becomes ~7,900 at 240x180).
 """
@@ -36,8 +36,9 @@ from model.archs.e2sri_arch import CENTRAL_OF_MODE, E2SRI, central_input
 from model.data.classical_flow import stack_flows
 from model.inference.engines import Forward, load_engine
 from model.inference.fill import FillConfig, fill_unobserved
-from model.inference.stack_size import Activity, StackChoice, choose_stack
+from model.inference.quantize import CalibrationSource
 from model.inference.temporal import consistency_step
+from model.stack_size import Activity, StackChoice, choose_stack
 
 log = logging.getLogger(__name__)
 Mode = Literal["main", "complementary", "duo-pass"]
@@ -140,21 +141,23 @@ class Reconstructor:
     def load(cls, ckpt: str | Path, sensor_hw: tuple[int, int], mode: Mode = "main",
              first_pass: str | Path | None = None, events_per_stack: int | None = None,
              device: str | None = None, engine: str = "torch",
-             activity: Activity | None = None) -> Reconstructor:
+             activity: Activity | None = None,
+             calibrate: CalibrationSource | None = None) -> Reconstructor:
         """Read ``ckpt`` and prepare it for a ``sensor_hw`` sensor (see :meth:`from_state`)."""
         return cls.from_state(checkpoint.load(ckpt), str(ckpt), sensor_hw, mode, first_pass,
-                              events_per_stack, device, engine, activity)
+                              events_per_stack, device, engine, activity, calibrate)
 
     @classmethod
     def from_state(cls, state: dict, ckpt: str, sensor_hw: tuple[int, int],
                    mode: Mode = "main", first_pass: str | Path | None = None,
                    events_per_stack: int | None = None, device: str | None = None,
-                   engine: str = "torch", activity: Activity | None = None) -> Reconstructor:
+                   engine: str = "torch", activity: Activity | None = None,
+                   calibrate: CalibrationSource | None = None) -> Reconstructor:
         """From an already loaded checkpoint ``state`` (``ckpt`` names it in errors);
-        ``engine``: ``torch``, ``onnxruntime``, ``openvino`` or ``auto``
-        (:func:`model.inference.engines.choose`). Events per stack: ``events_per_stack``,
-        else by the recording's ``activity`` (active-pixel rule), else by sensor area
-        (:func:`model.inference.stack_size.choose_stack`)."""
+        ``engine``: ``torch``, ``onnxruntime``, ``openvino``, ``openvino-int8`` (calibrated
+        on what ``calibrate`` makes) or ``auto`` (:func:`model.inference.engines.choose`).
+        Events per stack: ``events_per_stack``, else by the recording's ``activity``
+        (active-pixel rule), else by sensor area (:func:`model.stack_size.choose_stack`)."""
         dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
         net = checkpoint.model_from(state, dev, ckpt)
         if net.config.central != CENTRAL_OF_MODE[mode]:
@@ -167,7 +170,8 @@ class Reconstructor:
             path = first_pass or checkpoint.config_of(state).run.first_pass
             if not path:
                 raise ValueError("duo-pass needs --first-pass (a main model checkpoint)")
-            first = load_engine(engine, checkpoint.load_model(path, dev), dev, sensor_hw)
+            first = load_engine(engine, checkpoint.load_model(path, dev), dev, sensor_hw,
+                                calibrate=calibrate)
         data = checkpoint.config_of(state, ckpt).data
         trained = data.stacks
         trained_hw = tuple(state.get("sensor_hw") or checkpoint.TRAINED_SENSOR_HW)
@@ -177,13 +181,14 @@ class Reconstructor:
         choice = choose_stack(trained.events_per_channel, trained.channels, trained_hw,
                               sensor_hw, events_per_stack, activity)
         return cls(net, first, replace(trained, events_per_channel=choice.events_per_channel),
-                   dev, load_engine(engine, net, dev, sensor_hw, stack_rule=data.stack_rule),
+                   dev, load_engine(engine, net, dev, sensor_hw, stack_rule=data.stack_rule,
+                                    calibrate=calibrate),
                    choice)
 
     def with_stacks(self, given: int | None = None, activity: Activity | None = None
                     ) -> Reconstructor:
         """The same network (and engine) with events per stack chosen afresh from the
-        model's trained ones (:func:`model.inference.stack_size.choose_stack`): for another
+        model's trained ones (:func:`model.stack_size.choose_stack`): for another
         recording of the same sensor size."""
         base = self.stack_choice
         if base is None:

@@ -158,7 +158,7 @@ def test_first_pass_and_aps_centrals_change_only_the_first_layers():
 
 
 def test_the_network_has_a_projection_for_every_scale_datagen_renders():
-    from esim_lite.geometry.camera import SCALES
+    from esim_lite.core.scales import SCALES
     from model.archs.blocks import PROJECTION
 
     assert set(PROJECTION) == set(SCALES)

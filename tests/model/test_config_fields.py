@@ -102,7 +102,8 @@ def test_a_checkpoint_storing_retired_settings_at_their_neutral_values_loads_the
     x = (torch.rand(1, 3, 3, 16, 20) * 2 - 1, None, torch.randn(1, 3, 2, 16, 20))
     x = (x[0], x[0][:, 1], x[2])
     with torch.no_grad():
-        assert torch.equal(checkpoint.load_model(old)(*x), checkpoint.load_model(tiny_checkpoint)(*x))
+        assert torch.equal(checkpoint.load_model(old)(*x),
+                           checkpoint.load_model(tiny_checkpoint)(*x))
 
 
 @pytest.mark.parametrize("setting, value", [("model__history", [4.0, 32.0]),

@@ -2,8 +2,8 @@
 
 Properties: the graph really runs convolutions in int8 (quantisers in front of them) except
 the ones kept in float32; its output stays close to float32 on realistic inputs it was not
-calibrated on; the export is cached and reused; ``auto`` never picks it; a missing ``nncf``
-is a one-line error."""
+calibrated on; the export is cached and reused without simulating again; ``auto`` never
+picks it; a missing ``nncf`` is a one-line error, and so is a missing calibration source."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from model import checkpoint
+from model.calibration import simulated_inputs
 from model.inference import engines, graph_export, quantize
 from model.inference.engines import EngineMissing, load_engine
 from model.inference.pretrained import shipped_checkpoint
@@ -40,7 +41,7 @@ def small_calibration():
 def int8_folder(shipped_x2, tmp_path_factory):
     """The shipped x2 model exported once to int8."""
     folder = tmp_path_factory.mktemp("int8")
-    load_engine("openvino-int8", shipped_x2, CPU, (48, 64), folder)
+    load_engine("openvino-int8", shipped_x2, CPU, (48, 64), folder, calibrate=simulated_inputs)
     return folder
 
 
@@ -85,9 +86,10 @@ def test_the_graph_is_quantised_except_the_kept_convolutions(shipped_x2, int8_fo
 
 def test_int8_stays_close_to_float32_on_inputs_it_was_not_calibrated_on(shipped_x2,
                                                                          int8_folder):
-    engine = load_engine("openvino-int8", shipped_x2, CPU, (64, 64), int8_folder)
+    engine = load_engine("openvino-int8", shipped_x2, CPU, (64, 64), int8_folder,
+                         calibrate=simulated_inputs)
     assert engine.name == "openvino-int8"
-    held_out = quantize.calibration_inputs(
+    held_out = simulated_inputs(
         shipped_x2, quantize.Calibration(sequences=1, frames=10, samples=3, seed=99))
     for d in held_out:
         x = [torch.from_numpy(d[k]) for k in graph_export.INPUT_NAMES]
@@ -111,25 +113,54 @@ def test_the_int8_export_is_reused(shipped_x2, int8_folder, monkeypatch):
     def no_export(*_, **__):
         raise AssertionError("quantised again")
 
+    def no_simulation(*_):
+        raise AssertionError("simulated again")
+
+    # a cached int8 graph is reused as it is: nothing is simulated for it
+    load_engine("openvino-int8", shipped_x2, CPU, (20, 24), int8_folder,
+                calibrate=no_simulation)
     monkeypatch.setitem(engines._EXPORTS, "openvino-int8", (".npz", no_export))
-    load_engine("openvino-int8", shipped_x2, CPU, (20, 24), int8_folder)
+    load_engine("openvino-int8", shipped_x2, CPU, (20, 24), int8_folder,
+                calibrate=simulated_inputs)
     assert path.stat().st_mtime_ns == before
     # another calibration recipe is another file, not this one
     monkeypatch.setattr(quantize, "DEFAULT_CALIBRATION", quantize.Calibration(samples=9))
     with pytest.raises(AssertionError, match="quantised again"):
-        load_engine("openvino-int8", shipped_x2, CPU, (20, 24), int8_folder)
+        load_engine("openvino-int8", shipped_x2, CPU, (20, 24), int8_folder,
+                    calibrate=simulated_inputs)
     # a model trained on active-pixel stacks is calibrated on them: another file too
     monkeypatch.setattr(quantize, "DEFAULT_CALIBRATION", SMALL)
     with pytest.raises(AssertionError, match="quantised again"):
         load_engine("openvino-int8", shipped_x2, CPU, (20, 24), int8_folder,
-                    stack_rule="active")
+                    stack_rule="active", calibrate=simulated_inputs)
+
+
+def test_the_calibration_source_is_called_once_per_export_with_the_recipe(shipped_x2,
+                                                                          tmp_path):
+    calls = []
+
+    def source(net, calibration):
+        calls.append((net, calibration))
+        return simulated_inputs(net, calibration)
+
+    load_engine("openvino-int8", shipped_x2, CPU, (20, 24), tmp_path, stack_rule="active",
+                calibrate=source)
+    load_engine("openvino-int8", shipped_x2, CPU, (20, 24), tmp_path, stack_rule="active",
+                calibrate=source)
+    assert calls == [(shipped_x2, quantize.Calibration(sequences=1, frames=10, samples=8,
+                                                       seed=5, stack_rule="active"))]
+
+
+def test_int8_without_a_calibration_source_is_named(shipped_x2, tmp_path):
+    with pytest.raises(ValueError, match="openvino-int8 needs calibration inputs"):
+        load_engine("openvino-int8", shipped_x2, CPU, (20, 24), tmp_path)
 
 
 def test_the_calibration_stacks_follow_the_training_stack_rule(shipped_x2):
     # the active rule sizes each stack by the pixels that fire, at most the fixed rule's
     # count: on a sequence where about half the frame fires, about half the events
     def events(rule):
-        inputs = quantize.calibration_inputs(shipped_x2, quantize.Calibration(
+        inputs = simulated_inputs(shipped_x2, quantize.Calibration(
             sequences=1, frames=10, samples=3, seed=99, stack_rule=rule))
         return np.array([np.abs(x["stacks"]).sum() for x in inputs])
 

@@ -14,6 +14,7 @@ import pytest
 import torch
 
 from model import checkpoint
+from model.calibration import simulated_inputs
 from model.inference import engines, quantize
 from model.inference.engines import load_engine
 from model.inference.pretrained import shipped_checkpoint
@@ -49,7 +50,8 @@ def fixed_input(n: int, c: int, hw=(24, 32)):
 def test_shipped_outputs_are_unchanged(scale, engine, tmp_path, monkeypatch):
     monkeypatch.setattr(quantize, "DEFAULT_CALIBRATION", SMALL)  # int8: seconds, not a minute
     net = checkpoint.load_model(shipped_checkpoint(scale))
-    runner = load_engine(engine, net, torch.device("cpu"), (24, 32), tmp_path)
+    runner = load_engine(engine, net, torch.device("cpu"), (24, 32), tmp_path,
+                         calibrate=simulated_inputs)
     with torch.inference_mode():
         out = runner(*fixed_input(net.config.n_stacks, net.config.stack_channels))
     digest = hashlib.sha256(np.ascontiguousarray(out.float().numpy()).tobytes()).hexdigest()

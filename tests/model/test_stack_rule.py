@@ -13,7 +13,7 @@ from esim_lite.core.stacking import StackConfig
 from model.data.config import DataConfig
 from model.data.dataset import ShardSamples, index_samples, sequence_stacks
 from model.data.input_cache import CacheSpec, InputCache, cache_folder
-from model.inference.stack_size import MIN_ACTIVE_FRACTION, resolve_rule
+from model.stack_size import MIN_ACTIVE_FRACTION, resolve_rule
 from tests.model.conftest import tiny_config
 
 

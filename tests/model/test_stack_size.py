@@ -10,7 +10,7 @@ import pytest
 
 from datagen.formats.base import Recording
 from esim_lite.core.events import Events
-from model.inference.stack_size import (
+from model.stack_size import (
     MIN_ACTIVE_FRACTION,
     activity_of,
     choose_stack,
