@@ -24,9 +24,10 @@ from esim_lite.core.atomic import write_text
 MANIFEST = ".e2sr-outputs"
 
 
-def writable_folder(folder: str | Path, flag: str = "--out") -> Path:
+def writable_folder(folder: str | Path, flag: str = "--out", keep: bool = True) -> Path:
     """``folder``, created if needed and proven writable (a probe file is written and
-    removed).
+    removed); ``keep=False``: the folders created for the probe are removed again (a check
+    before any work leaves nothing behind).
 
     Raises:
         ValueError: naming ``folder`` and why: a file is in the way, or it cannot be
@@ -35,11 +36,14 @@ def writable_folder(folder: str | Path, flag: str = "--out") -> Path:
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise ValueError(f"{folder}: exists and is not a folder ({flag} names a folder)")
+    missing = [p for p in (folder, *folder.parents) if not p.exists()]
     try:
         folder.mkdir(parents=True, exist_ok=True)
         probe = folder / f".write-test-{os.getpid()}"
         probe.write_bytes(b"")
         probe.unlink()
+        for made in [] if keep else missing:
+            made.rmdir()
     except OSError as exc:
         raise ValueError(f"{folder}: output folder is not writable "
                          f"({exc.strerror or exc})") from exc
@@ -128,7 +132,7 @@ class OutputFolder:
         Raises:
             ValueError: naming the entry or the folder and the problem.
         """
-        writable_folder(self.folder, self.flag)
+        writable_folder(self.folder, self.flag, keep=False)
         ours, found = self.written(), self.existing()
         for path, pattern in found:
             refuse_inputs(path, self.inputs, self.flag)
