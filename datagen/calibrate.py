@@ -125,6 +125,20 @@ def calibrate_events(events: Events, frames: Frames | None, source: str = "<even
                        lamp, measured, tuple(notes))
 
 
+PRESET_HEADER = "# Sensor preset measured from"
+"""The first words of every preset :func:`preset_yaml` writes (how ``calibrate --out``
+knows a file it may replace)."""
+
+
+def is_preset(path: Path) -> bool:
+    """Whether ``path`` is a preset this command wrote (its first line says so)."""
+    try:
+        with open(path, "rb") as f:
+            return f.read(len(PRESET_HEADER)) == PRESET_HEADER.encode()
+    except OSError:
+        return False
+
+
 def calibrate_recording(path: str | Path, sensor_hw: tuple[int, int] | None = None,
                         sequence: str | None = None) -> Calibration:
     """Open ``path`` (any format ``reconstruct`` reads) and calibrate it.
@@ -207,7 +221,7 @@ def preset_yaml(cals: Calibration | Sequence[Calibration], command: str = "") ->
 def _header_lines(cals: Sequence[Calibration], command: str) -> list[str]:
     """The comments on top: the sensor, how to load the preset, and each recording's stats."""
     h, w = cals[0].sensor_hw
-    lines = [f"# Sensor preset measured from {len(cals)} recording(s) of one {w}x{h} sensor.",
+    lines = [f"{PRESET_HEADER} {len(cals)} recording(s) of one {w}x{h} sensor.",
              *([f"# Made by: {command}"] if command else []),
              "# Loads on top of a dataset config: datagen generate --config BASE.yaml "
              "--config THIS.yaml ...",

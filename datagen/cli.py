@@ -12,6 +12,8 @@ from pathlib import Path
 from datagen.config import DatagenConfig
 from datagen.shard import find_shards
 from esim_lite.core.dataconf import ConfigError, load_config
+from esim_lite.core.limits import cap_workers
+from esim_lite.core.outputs import OutputFolder
 from esim_lite.core.scales import SCALES
 
 log = logging.getLogger("datagen")
@@ -147,9 +149,11 @@ def _sensor_size(text: str | None) -> tuple[int, int] | None:
 
 
 def _calibrate(args: argparse.Namespace) -> int:
-    from datagen.calibrate import calibrate_recording, preset_yaml, summary_table
+    from datagen.calibrate import calibrate_recording, is_preset, preset_yaml, summary_table
     from esim_lite.core.atomic import write_text
+    from esim_lite.core.outputs import check_output_file
 
+    check_output_file(args.out, args.recording, is_preset, "sensor preset")
     cals = [calibrate_recording(r, _sensor_size(args.sensor_size), args.sequence)
             for r in args.recording]
     command = "datagen calibrate " + " ".join(
@@ -191,9 +195,13 @@ def _generate(args: argparse.Namespace) -> int:
 
     if args.workers < 1:
         raise ValueError(f"--workers must be at least 1, got {args.workers}")
+    workers = cap_workers(args.workers)
+    if workers < args.workers:
+        log.warning("--workers %d: capped at the %d cores of this machine (more processes "
+                    "would only hold more memory)", args.workers, workers)
     shard_index, num_shards = array_job(args.shard_index, args.num_shards)
     config = load_config(DatagenConfig, args.config, args.set, _flag_values(args))
-    summary = generate(config, args.out, args.n_seq, seed=args.seed, workers=args.workers,
+    summary = generate(config, args.out, args.n_seq, seed=args.seed, workers=workers,
                        shard_index=shard_index, num_shards=num_shards,
                        show_progress=not args.no_progress)
     print(summary.line())
@@ -217,17 +225,19 @@ def main(argv: list[str] | None = None) -> int:
             print("\n".join(describe_shard(p) for p in paths))
             return 0
         if args.command == "preview":
-            from datagen.preview import preview_shards
+            from datagen.preview import preview_names, preview_shards
             from esim_lite.core.stacking import StackConfig
 
             out = Path(args.out) if args.out else paths[0].parent / "preview"
-            written = preview_shards(paths, out, StackConfig())
+            folder = OutputFolder(out, preview_names(paths), paths).prepare()
+            written = preview_shards(paths, folder, StackConfig())
             print(f"wrote {len(written)} preview PNG(s) to {out.resolve()}")
             return 0
         if args.command == "export":
-            from datagen.export import export
+            from datagen.export import export, export_names
 
-            written = export(paths, args.format, args.out, args.sequence)
+            folder = OutputFolder(args.out, export_names(paths, args.format), paths).prepare()
+            written = export(paths, args.format, folder, args.sequence)
             print(f"wrote {len(written)} {args.format} sequence(s) to {Path(args.out).resolve()}")
             return 0
     except (ConfigError, FileNotFoundError, ValueError, OSError) as exc:

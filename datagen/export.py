@@ -41,6 +41,7 @@ import numpy as np
 
 from datagen.shard import SequenceRecord, ShardReader
 from esim_lite.core.atomic import atomic_folder, atomic_path
+from esim_lite.core.outputs import OutputFolder, claim
 
 FORMATS = ("event_utils", "evreal", "txt")
 
@@ -174,8 +175,14 @@ _WRITERS = {"event_utils": (_write_event_utils, ".h5"), "evreal": (_write_evreal
             "txt": (_write_txt, "")}
 
 
-def export(shards: list[Path], fmt: str, out: str | Path, sequence: str | None = None
-           ) -> list[Path]:
+def export_names(shards: list[Path], fmt: str) -> list[str]:
+    """The ``fnmatch`` patterns of what :func:`export` writes for ``shards`` in ``fmt``."""
+    suffix = _WRITERS[fmt][1] if fmt in _WRITERS else ""
+    return [f"{path.stem}_seq_*{suffix}" for path in shards]
+
+
+def export(shards: list[Path], fmt: str, out: str | Path | OutputFolder,
+           sequence: str | None = None) -> list[Path]:
     """Write every sequence of ``shards`` (or only ``sequence``) in format ``fmt`` into
     ``out``; return what was written.
 
@@ -185,13 +192,13 @@ def export(shards: list[Path], fmt: str, out: str | Path, sequence: str | None =
     if fmt not in _WRITERS:
         raise ValueError(f"unknown export format {fmt!r} (expected {', '.join(FORMATS)})")
     write, suffix = _WRITERS[fmt]
-    out, written = Path(out), []
+    written = []
     for path in shards:
         with ShardReader(path) as reader:
             for name in reader.sequences():
                 if sequence is not None and name != sequence:
                     continue
-                target = out / f"{path.stem}_{name}{suffix}"
+                target = claim(out) / f"{path.stem}_{name}{suffix}"
                 written.append(write(reader.read(name), target))
     if sequence is not None and not written:
         raise ValueError(f"no sequence {sequence!r} in {', '.join(str(p) for p in shards)}")

@@ -35,6 +35,7 @@ from datagen.shard import ShardReader, ShardWriter
 from datagen.textures import TextureSampler
 from esim_lite.core.atomic import atomic_path
 from esim_lite.core.dataconf import to_yaml
+from esim_lite.core.outputs import writable_folder
 from esim_lite.render.renderer import make_renderer
 from esim_lite.sequence import sample_footprints, simulate
 
@@ -107,16 +108,6 @@ def _with_threads(config: DatagenConfig, threads: int | None) -> DatagenConfig:
     render = dataclasses.replace(config.simulation.render, threads=threads)
     return dataclasses.replace(config, simulation=dataclasses.replace(config.simulation,
                                                                       render=render))
-
-
-def _check_writable(out: Path) -> None:
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        probe = out / f".write-test-{os.getpid()}"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        raise ValueError(f"{out}: output folder is not writable ({exc.strerror or exc})") from exc
 
 
 def write_shard(plan: ShardPlan, config: DatagenConfig, seed: int, progress=None,
@@ -243,7 +234,7 @@ def generate(config: DatagenConfig, out: str | Path, n_seq: int, seed: int = 0,
     """Write (or complete) a dataset of ``n_seq`` sequences under ``out``."""
     out = Path(out)
     plans = plan_shards(out, n_seq, config.sequences_per_shard, shard_index, num_shards)
-    _check_writable(out)
+    writable_folder(out)
     textures = TextureSampler(config.textures)  # fails here on a bad texture path
     config = _resolve_variant(config)
     config_yaml = to_yaml(config)
@@ -257,6 +248,11 @@ def _generate_locked(out: Path, plans: list[ShardPlan], config: DatagenConfig,
                      show_progress: bool) -> GenerateSummary:
     """The body of :func:`generate`, run while this process holds the folder's lock."""
     states = {p.index: shard_state(p, config_yaml, seed) for p in plans}
+    strangers = [p.path for p in plans if states[p.index] == "stranger"]
+    if strangers:
+        raise ValueError(f"{strangers[0]}: is in the way of a shard and is not one datagen "
+                         f"wrote (not an e2sr shard); it is left as it is: move it or write "
+                         f"this dataset to another --out folder")
     foreign = [p.path for p in plans if states[p.index] == "foreign"]
     if foreign:
         raise ValueError(f"{foreign[0]}: a complete shard made with a different config or "

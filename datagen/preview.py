@@ -17,6 +17,7 @@ from esim_lite.core.figures import (
     stack_panel,
     write_png,
 )
+from esim_lite.core.outputs import OutputFolder, claim
 from esim_lite.core.stacking import StackConfig, sbn_stack
 
 
@@ -70,7 +71,12 @@ def sequence_preview(reader: ShardReader, name: str, stacks: StackConfig, rows: 
     return contact_sheet(panels, title)
 
 
-def preview_shards(paths: list[Path], out_dir: str | Path, stacks: StackConfig
+def preview_names(paths: list[Path]) -> list[str]:
+    """The ``fnmatch`` patterns of what :func:`preview_shards` writes for ``paths``."""
+    return [f"{path.stem}_seq_*.png" for path in paths]
+
+
+def preview_shards(paths: list[Path], out_dir: str | Path | OutputFolder, stacks: StackConfig
                    ) -> list[Path]:
     """Write one PNG per sequence of each shard into ``out_dir``; return their paths."""
     written = []
@@ -78,5 +84,5 @@ def preview_shards(paths: list[Path], out_dir: str | Path, stacks: StackConfig
         with ShardReader(path) as reader:
             for name in reader.sequences():
                 sheet = sequence_preview(reader, name, stacks)
-                written.append(write_png(Path(out_dir) / f"{path.stem}_{name}.png", sheet))
+                written.append(write_png(claim(out_dir) / f"{path.stem}_{name}.png", sheet))
     return written

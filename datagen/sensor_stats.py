@@ -237,7 +237,8 @@ def _quiet_rate(events: Events, bin_s: float, keep: np.ndarray, on: np.ndarray
     """(rate, ON share, events, quiet cells, quiet fraction) over space-time cells with no
     other event in their 5x5 x 3-bin neighbourhood. Whole bins only (a partial last bin is
     left out), and neither the first nor the last one (their neighbourhoods reach outside
-    the recording). Sparse: only cells near an event are visited."""
+    the recording). Sparse: only cells near an event are visited, one neighbourhood offset
+    at a time (memory in proportion to the events, not 75 times that)."""
     h, w = events.sensor_hw
     bin_ns = max(int(round(bin_s * 1e9)), 1)
     full = int((events.t_ns[-1] - events.t_ns[0]) // bin_ns)
@@ -247,32 +248,56 @@ def _quiet_rate(events: Events, bin_s: float, keep: np.ndarray, on: np.ndarray
     cells = (b * h + events.y[keep]) * w + events.x[keep]
     occupied, own = np.unique(cells, return_counts=True)
     own_on = np.bincount(np.searchsorted(occupied, cells[on[keep]]), minlength=len(occupied))
-    ob, rem = np.divmod(occupied, h * w)
-    oy, ox = np.divmod(rem, w)
-    # every cell within reach of an event gets the events of its neighbourhood
-    nb = ob[:, None] + _NEIGHBOURHOOD[:, 0]
-    ny = oy[:, None] + _NEIGHBOURHOOD[:, 1]
-    nx = ox[:, None] + _NEIGHBOURHOOD[:, 2]
-    inside = (ny >= 0) & (ny < h) & (nx >= 0) & (nx < w) & (nb >= 0)
-    near = ((nb * h + ny) * w + nx)[inside]
-    weight = np.broadcast_to(own[:, None], inside.shape)[inside]
-    reached, slot = np.unique(near, return_inverse=True)
-    total = np.bincount(slot, weights=weight, minlength=len(reached))
-    own_at = np.zeros(len(reached))
-    at = np.searchsorted(reached, occupied)
-    own_at[at] = own
-    rb = reached // (h * w)
-    valid = (rb >= 1) & (rb < full - 1)
-    noisy = valid & (total - own_at > 0)
+    # the events in every occupied cell's neighbourhood (its own included)
+    total = np.zeros(len(occupied), np.int64)
+    for ids, src in _neighbours(occupied, h, w, 0, len(occupied)):
+        j = np.searchsorted(occupied, ids).clip(max=len(occupied) - 1)
+        hit = occupied[j] == ids
+        np.add.at(total, src[hit], own[j[hit]])
+    ob = occupied // (h * w)
+    valid_occ = (ob >= 1) & (ob < full - 1)
+    quiet_occ = valid_occ & (total - own == 0)
+    # a cell within reach of an event is noisy unless the only events there are its own
+    n_noisy = _reached(occupied, h, w, h * w, (full - 1) * h * w) - int(quiet_occ.sum())
     n_cells = (full - 2) * h * w
-    n_quiet = n_cells - int(noisy.sum())
-    occ_b = ob
-    quiet_occ = (occ_b >= 1) & (occ_b < full - 1) & (total[at] - own == 0)
+    n_quiet = n_cells - n_noisy
     n_ev = int(own[quiet_occ].sum())
     if n_quiet <= 0:
         return math.nan, math.nan, 0, 0, 0.0
     on_share = float(own_on[quiet_occ].sum() / n_ev) if n_ev else math.nan
     return n_ev / (n_quiet * bin_s), on_share, n_ev, n_quiet, n_quiet / n_cells
+
+
+def _neighbours(occupied: np.ndarray, h: int, w: int, lo: int, hi: int):
+    """(cell ids, index of the source cell) of each neighbourhood offset of the occupied
+    cells ``lo..hi-1``, only those inside the sensor and from bin 0 on; one offset at a
+    time."""
+    src = np.arange(lo, hi)
+    ob, rem = np.divmod(occupied[lo:hi], h * w)
+    oy, ox = np.divmod(rem, w)
+    for db, dy, dx in _NEIGHBOURHOOD:
+        ny, nx, nb = oy + dy, ox + dx, ob + db
+        ok = (ny >= 0) & (ny < h) & (nx >= 0) & (nx < w) & (nb >= 0)
+        yield ((nb * h + ny) * w + nx)[ok], src[ok]
+
+
+def _reached(occupied: np.ndarray, h: int, w: int, first: int, stop: int) -> int:
+    """How many distinct cells with ids in ``[first, stop)`` lie in the neighbourhood of an
+    occupied cell, counted on a bitmap one block of cell ids at a time."""
+    reach = h * w + 2 * w + 2  # the farthest a neighbour's id lies from its cell's
+    span = max(1 << 23, 2 * reach)
+    home = np.unique(occupied // span)
+    count = 0
+    for block in np.unique(np.concatenate([home - 1, home, home + 1])):
+        a, z = max(int(block) * span, first), min((int(block) + 1) * span, stop)
+        lo, hi = np.searchsorted(occupied, [a - reach, z + reach])
+        if z <= a or lo == hi:
+            continue
+        mask = np.zeros(z - a, bool)
+        for ids, _ in _neighbours(occupied, h, w, int(lo), int(hi)):
+            mask[ids[(ids >= a) & (ids < z)] - a] = True
+        count += int(np.count_nonzero(mask))
+    return count
 
 
 def background_activity(events: Events, exclude: np.ndarray | None = None

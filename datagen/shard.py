@@ -165,6 +165,10 @@ def library_versions() -> dict[str, str]:
             "hdf5": h5py.version.hdf5_version, "e2sr": installed("e2sr")}
 
 
+MAX_INTENSITY = 4.0
+"""The largest linear intensity a shard's frame may hold (the simulator's are in [0, 1])."""
+
+
 class ShardWriter:
     """Writes sequences into one open HDF5 file; events and frames are appended in chunks.
 
@@ -541,22 +545,26 @@ class ShardReader:
     @staticmethod
     def state(path: str | Path, config_yaml: str, seed: int, sequences: list[int]) -> str:
         """``done`` (a complete shard of this config, seed and sequences), ``foreign`` (a
-        complete shard of another config, seed or schema) or ``todo`` (missing, unreadable,
-        interrupted, or holding other sequences of this dataset)."""
+        complete shard of another config, seed or schema), ``todo`` (missing, or an e2sr
+        shard that is interrupted or holds other sequences of this dataset: ours to
+        replace) or ``stranger`` (anything else: not HDF5, or HDF5 without the shard
+        schema's attributes; never ours to remove)."""
         path = Path(path)
-        if not path.is_file():
+        if not path.exists() and not path.is_symlink():
             return "todo"
         try:
             with h5py.File(path, "r") as f:
                 a = f.attrs
-                if not bool(a.get("complete", False)):
+                if "schema_version" not in a or "config" not in a or "complete" not in a:
+                    return "stranger"
+                if not bool(a["complete"]):
                     return "todo"
                 if a.get("config") != config_yaml or int(a.get("seed", -1)) != seed \
                         or a.get("schema_version") != SCHEMA_VERSION:
                     return "foreign"
                 return "done" if list(a.get("sequences", [])) == list(sequences) else "todo"
-        except OSError:
-            return "todo"
+        except (OSError, ValueError, TypeError):
+            return "stranger"
 
     def _group(self, name: str) -> h5py.Group:
         if name not in self.file:
@@ -730,6 +738,29 @@ class ShardReader:
         """float32[H, W] frame ``k`` of ``camera`` (``as_stored``: in the file's dtype)."""
         img = self._group(name)["frames"][camera][k]
         return img if as_stored else img.astype(np.float32)
+
+    def check_frames(self, name: str, camera: str) -> None:
+        """Refuse frames that are no linear intensity: stored as other than float16/32, or
+        (in the first and last frame) not finite or outside ``[0, MAX_INTENSITY]``.
+
+        Raises:
+            ValueError: naming the file, the dataset and the values found.
+        """
+        ds = self._group(name)["frames"][camera]
+        where = f"{self.path}: {name}/frames/{camera}"
+        if ds.dtype not in (np.float16, np.float32) or ds.ndim != 3:
+            raise ValueError(f"{where}: {ds.dtype}{list(ds.shape)}, expected float16 or "
+                             f"float32 [T, H, W] linear intensity")
+        for k in sorted({0, len(ds) - 1}) if len(ds) else []:
+            frame = ds[k].astype(np.float32)
+            if not np.isfinite(frame).all() or frame.min() < 0 or frame.max() > MAX_INTENSITY:
+                raise ValueError(f"{where}: frame {k} holds values {frame.min():.4g}.."
+                                 f"{frame.max():.4g}, not linear intensity in [0, "
+                                 f"{MAX_INTENSITY}] (the simulator writes [0, 1])")
+
+    def frame_shape(self, name: str, camera: str) -> tuple[int, ...]:
+        """(T, H, W) of ``camera``'s frames as stored (nothing read)."""
+        return tuple(int(v) for v in self._group(name)["frames"][camera].shape)
 
     def frames(self, name: str, camera: str) -> Frames:
         """All frames of one camera, float32 linear intensity, with their times."""

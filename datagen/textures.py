@@ -19,6 +19,9 @@ from typing import Literal
 import cv2
 import numpy as np
 
+from esim_lite.core.images import decode_image
+from esim_lite.core.limits import MAX_IMAGE_BYTES
+
 log = logging.getLogger(__name__)
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".tga", ".webp")
@@ -118,10 +121,14 @@ def in_split(key: str, split: str, test_fraction: float) -> bool:
     return is_test == (split == "test")
 
 
-def _decode(data: bytes) -> np.ndarray | None:
-    """Gray image in [0, 1] (float32) from encoded bytes, or None if unreadable."""
-    arr = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
-    if arr is None or arr.size == 0 or arr.ndim not in (2, 3):
+def _decode(data: bytes, source: str) -> np.ndarray | None:
+    """Gray image in [0, 1] (float32) from encoded bytes, or None if unreadable.
+
+    Raises:
+        ValueError: naming ``source``: its header states more than ``MAX_IMAGE_PIXELS``.
+    """
+    arr = decode_image(data, source)
+    if arr is None or arr.ndim not in (2, 3):
         return None
     if arr.ndim == 3:
         if arr.shape[2] == 4:
@@ -203,12 +210,16 @@ class ImageLibrary:
         try:
             if member:
                 with zipfile.ZipFile(container) as zf:
-                    data = zf.read(member)
+                    size = zf.getinfo(member).file_size
+                    data = b"" if size > MAX_IMAGE_BYTES else zf.read(member)
             else:
-                data = Path(container).read_bytes()
-            img = _decode(data)
+                size = Path(container).stat().st_size
+                data = b"" if size > MAX_IMAGE_BYTES else Path(container).read_bytes()
+            if size > MAX_IMAGE_BYTES:
+                raise ValueError(f"{size:,} bytes, more than {MAX_IMAGE_BYTES:,}")
+            img = _decode(data, self.name(i))
             problem = "not a decodable image" if img is None else "smaller than 8 pixels"
-        except (OSError, KeyError, zipfile.BadZipFile) as exc:
+        except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
             img, problem = None, str(exc)
         if img is None or min(img.shape) < 8:
             self.skipped += 1

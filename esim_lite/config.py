@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
+from esim_lite.core.limits import MAX_RENDER_PIXELS, check_sensor_hw
 from esim_lite.core.scales import check_scales
 from esim_lite.events.sampling import SamplingConfig
 from esim_lite.events.simulator import EventConfig
@@ -33,6 +34,12 @@ class CameraConfig:
         if self.width < 2 or self.height < 2:
             raise ValueError("sensor must be at least 2x2")
         check_scales(self.scales, "camera.scales")
+        check_sensor_hw((self.height, self.width), "camera.width/height", "event sensor")
+        hr = self.width * self.height * max(self.scales) ** 2
+        if hr > MAX_RENDER_PIXELS:
+            raise ValueError(f"camera.width/height: a {self.width}x{self.height} sensor at "
+                             f"x{max(self.scales)} renders {hr:,} pixels a frame, more than "
+                             f"{MAX_RENDER_PIXELS:,}")
 
     def rig(self) -> CameraRig:
         return CameraRig(Intrinsics.from_fov(self.width, self.height, self.fov_x_deg),

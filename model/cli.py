@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
 
             result = train(config, args.data, args.out, resume=args.resume,
                            show_progress=not args.no_progress)
-    except (ConfigError, FileNotFoundError, ValueError, FloatingPointError) as exc:
+    except (ConfigError, FileNotFoundError, ValueError, FloatingPointError, OSError) as exc:
         print(f"train: error: {exc}", file=sys.stderr)
         return 2
     print(f"trained {result['step']} steps in {result['seconds']:.0f} s; validation: "
@@ -72,12 +72,14 @@ def _claim_out(args: argparse.Namespace, seed: int):
     return RunFolder(args.out, seed, resume=args.resume, overwrite=args.overwrite)
 
 
-def _check_out_folder(out: str) -> None:
-    """Outputs are checked before any work: ``out`` must be a folder or not exist yet."""
-    path = Path(out)
-    if path.exists() and not path.is_dir():
-        raise ValueError(f"{path}: exists and is not a folder (--out names the folder the "
-                         f"frames are written into)")
+def _out_folder(out: str, names: tuple[str, ...], inputs: list[str], earlier: str,
+                what: str):
+    """The output folder, checked before any work (:class:`esim_lite.core.outputs.
+    OutputFolder`): a folder (or nothing yet) that is writable, where no file under this
+    command's names is an input or a file e2sr did not write."""
+    from esim_lite.core.outputs import OutputFolder
+
+    return OutputFolder(out, names, inputs).prepare(earlier, what)
 
 
 def _sensor(text: str | None) -> tuple[int, int] | None:
@@ -139,6 +141,8 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
     p.add_argument("--scale", type=int, default=2, help="super-resolution factor of the "
                    "shipped model to use when no --checkpoint is given (default 2)")
     p.add_argument("--out", required=True, help="folder for frame_XXXXXX.png")
+    p.add_argument("--overwrite", action="store_true", help="replace the frames an earlier "
+                   "reconstruct left in --out (without it such a folder is refused)")
     p.add_argument("--mode", choices=["main", "complementary", "duo-pass"], default="main")
     p.add_argument("--first-pass", help="main model checkpoint for --mode duo-pass")
     p.add_argument("--sensor-size", help="WxH, when the file does not say (e.g. 240x180)")
@@ -165,12 +169,15 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
         from model import checkpoint
         from model.calibration import simulated_inputs
         from model.inference.pretrained import resolve
-        from model.inference.reconstruct import Reconstructor, plan_outputs, reconstruct
+        from model.inference.reconstruct import OUTPUTS, Reconstructor, plan_outputs, reconstruct
         from model.stack_size import activity_for_rule
 
-        _check_out_folder(args.out)
+        out = _out_folder(args.out, OUTPUTS, [args.input, args.checkpoint or ""],
+                          "remove" if args.overwrite else "refuse", "frames")
         ckpt = resolve(args.checkpoint, args.scale)
         rec = open_recording(args.input, _sensor(args.sensor_size), args.sequence)
+        if args.mode != "main":  # the APS frames enter the network beside the events
+            rec.check_frames_match()
         state = checkpoint.load(ckpt)
         activity = activity_for_rule(rec, args.stack_rule,
                                      checkpoint.config_of(state, str(ckpt)).data.stack_rule,
@@ -180,9 +187,9 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
                                          args.engine, activity, simulated_inputs)
         model = replace(model, fill=fill_config(args))
         plan = plan_outputs(rec, model.stacks, args.at, args.rate, args.every)
-        result = reconstruct(rec, model, args.out, plan, args.mp4, not args.no_progress,
+        result = reconstruct(rec, model, out, plan, args.mp4, not args.no_progress,
                              args.limit, temporal=args.temporal)
-    except (ConfigError, FileNotFoundError, ValueError) as exc:
+    except (ConfigError, FileNotFoundError, ValueError, OSError) as exc:
         print(f"reconstruct: error: {exc}", file=sys.stderr)
         return 2
     n = len(result.frames)
@@ -231,10 +238,11 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         from model.calibration import simulated_inputs
-        from model.inference.evaluate import BASELINES, EvalOptions, evaluate
+        from model.inference.evaluate import BASELINES, OUTPUTS, EvalOptions, evaluate
         from model.inference.pretrained import resolve
 
-        _check_out_folder(args.out)
+        out = _out_folder(args.out, OUTPUTS, [*args.recording, args.data or "",
+                                              args.checkpoint or ""], "replace", "metrics")
         options = EvalOptions(normalize=args.normalize, every=args.every,
                               max_frames=args.max_frames,
                               baselines=() if args.no_baselines else BASELINES,
@@ -242,10 +250,10 @@ def evaluate_main(argv: list[str] | None = None) -> int:
                               events_per_stack=args.events_per_stack,
                               exposure_average=args.exposure_average,
                               fill=fill_config(args))
-        rows = evaluate(resolve(args.checkpoint, args.scale), args.out, args.data,
+        rows = evaluate(resolve(args.checkpoint, args.scale), out, args.data,
                         args.recording, options, args.first_pass, args.split,
                         _sensor(args.sensor_size), args.engine, simulated_inputs)
-    except (ConfigError, FileNotFoundError, ValueError) as exc:
+    except (ConfigError, FileNotFoundError, ValueError, OSError) as exc:
         print(f"evaluate: error: {exc}", file=sys.stderr)
         return 2
     for r in rows:
@@ -261,6 +269,35 @@ def evaluate_main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def _metrics_of(path: Path) -> object:
+    """What ``export-model --metrics`` records: a result.json's ``val`` entry, or the text
+    of a metrics.csv (at most a config's size).
+
+    Raises:
+        ValueError: naming ``path``: not a file, too large, or not a JSON object.
+    """
+    import json
+
+    from esim_lite.core.limits import MAX_CONFIG_BYTES
+
+    if not path.is_file():
+        raise ValueError(f"{path}: --metrics names a result.json or metrics.csv file, and "
+                         f"this is {'a folder' if path.is_dir() else 'not there'}")
+    if path.stat().st_size > MAX_CONFIG_BYTES:
+        raise ValueError(f"{path}: {path.stat().st_size:,} bytes, more than a metrics file "
+                         f"holds ({MAX_CONFIG_BYTES:,})")
+    text = path.read_text(errors="replace")
+    if path.suffix != ".json":
+        return text
+    try:
+        data = json.loads(text)
+    except ValueError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: not a JSON object (train's result.json is one)")
+    return data.get("val")
+
+
 def export_main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="export-model", description="Ship a trained checkpoint "
                                 "as the package's default model of its scale (float16 "
@@ -271,8 +308,6 @@ def export_main(argv: list[str] | None = None) -> int:
     p.add_argument("--metrics", help="a result.json or metrics.csv to record beside it")
     args = p.parse_args(argv)
     try:
-        import json
-
         from model import checkpoint
         from model.inference.pretrained import export
 
@@ -280,11 +315,9 @@ def export_main(argv: list[str] | None = None) -> int:
         info = {"data": args.data, "recipe": args.recipe, "step": state.get("step"),
                 "train_hours_2_cores": round(float(state.get("train_seconds") or 0) / 3600, 3)}
         if args.metrics:
-            path = Path(args.metrics)
-            info["metrics"] = json.loads(path.read_text()).get("val") \
-                if path.suffix == ".json" else path.read_text()
+            info["metrics"] = _metrics_of(Path(args.metrics))
         target = export(args.checkpoint, info=info)
-    except (ConfigError, FileNotFoundError, ValueError) as exc:
+    except (ConfigError, FileNotFoundError, ValueError, OSError) as exc:
         print(f"export-model: error: {exc}", file=sys.stderr)
         return 2
     print(f"shipped {target} ({target.stat().st_size / 1e6:.2f} MB)")

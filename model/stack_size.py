@@ -76,14 +76,28 @@ def activity_of(events: Events, window_s: float = ACTIVE_WINDOW_S,
 def measure_activity(recording: Recording, window_s: float = ACTIVE_WINDOW_S,
                      min_events: int = ACTIVE_MIN_EVENTS,
                      chunk: int = READ_CHUNK_EVENTS) -> Activity:
-    """:func:`activity_of` the recording's first ``window_s`` seconds, reading only those."""
-    parts, t0 = [], None
+    """:func:`activity_of` the recording's first ``window_s`` seconds, reading only those
+    and holding one chunk at a time (per-pixel counts accumulate chunk by chunk, so a
+    second of a billion events takes no more memory than a second of a thousand)."""
+    if window_s <= 0 or min_events < 1:
+        raise ValueError(f"window_s must be > 0 and min_events >= 1, got {window_s}, "
+                         f"{min_events}")
+    h, w = recording.sensor_hw
+    counts = np.zeros(h * w, np.int64)
+    t0 = last = None
+    n = 0
     for ev in recording.events(chunk):
         t0 = int(ev.t_ns[0]) if t0 is None else t0
-        parts.append(ev)
-        if ev.t_ns[-1] >= t0 + window_s * 1e9:
+        end = int(np.searchsorted(ev.t_ns, t0 + round(window_s * 1e9)))
+        counts += np.bincount(ev.y[:end].astype(np.int64) * w + ev.x[:end], minlength=h * w)
+        n += end
+        last = int(ev.t_ns[end - 1]) if end else last
+        if end < len(ev):
             break
-    return activity_of(Events.concatenate(parts, recording.sensor_hw), window_s, min_events)
+    if not n:
+        return Activity(0, (h, w), 0.0, 0, min_events)
+    return Activity(int(np.count_nonzero(counts >= min_events)), (h, w), (last - t0) * 1e-9, n,
+                    min_events)
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,12 @@ import numpy as np
 
 from esim_lite.core.events import Events
 from esim_lite.core.frames import Frames
+from esim_lite.core.limits import (
+    MAX_EVENTS_HELD,
+    MAX_FRAME_PIXELS,
+    check_image_pixels,
+    check_sensor_hw,
+)
 
 READ_CHUNK_EVENTS = 1_000_000
 """Events read at a time when streaming a recording (bounded memory at any length)."""
@@ -38,6 +44,7 @@ class Recording:
     exposures_ns: np.ndarray | None = None
 
     def __post_init__(self) -> None:
+        check_sensor_hw(self.sensor_hw, self.path)
         if self.exposures_ns is None:
             return
         n = 0 if self.frames is None else len(self.frames)
@@ -54,7 +61,7 @@ class Recording:
                 outside the sensor, or a polarity other than ON/OFF.
         """
         last, total = None, 0
-        for ev in self._chunks(chunk):
+        for ev in self._decoded(chunk):
             if not len(ev):
                 continue
             where = f"{self.path}: events {total}..{total + len(ev) - 1}"
@@ -72,9 +79,48 @@ class Recording:
         if total == 0:
             raise ValueError(f"{self.path}: the recording holds no events")
 
-    def read_all(self) -> Events:
-        """Every event in memory (for short recordings)."""
-        return Events.concatenate(list(self.events()), self.sensor_hw)
+    def check_frames_match(self) -> None:
+        """Refuse APS frames of another size than the event sensor (a command that compares
+        or fuses the two).
+
+        Raises:
+            ValueError: naming the file and both sizes.
+        """
+        if self.frames is not None and self.frames.hw != tuple(self.sensor_hw):
+            (fh, fw), (h, w) = self.frames.hw, self.sensor_hw
+            raise ValueError(f"{self.path}: APS frames are {fw}x{fh}, the event sensor is "
+                             f"{w}x{h}; give the sensor size if the file's is wrong")
+
+    def _decoded(self, chunk: int) -> Iterator[Events]:
+        """The decoder's chunks, its failures past the header (a corrupt payload, an
+        unreadable HDF5 chunk) turned into a ValueError naming the file."""
+        chunks, total = self._chunks(chunk), 0
+        while True:
+            try:
+                ev = next(chunks)
+            except StopIteration:
+                return
+            except (RuntimeError, OSError, KeyError, TypeError, IndexError) as exc:
+                raise ValueError(f"{self.path}: cannot be read after event {total:,} "
+                                 f"(corrupt or not this format: {exc})") from exc
+            total += len(ev)
+            yield ev
+
+    def read_all(self, max_events: int = MAX_EVENTS_HELD) -> Events:
+        """Every event in memory (for short recordings).
+
+        Raises:
+            ValueError: naming the file, when it holds more than ``max_events`` events.
+        """
+        parts, total = [], 0
+        for ev in self.events():
+            total += len(ev)
+            if total > max_events:
+                raise ValueError(f"{self.path}: more than {max_events:,} events, the most "
+                                 f"this command holds in memory at once; cut the recording "
+                                 f"into parts")
+            parts.append(ev)
+        return Events.concatenate(parts, self.sensor_hw)
 
 
 # numpy dtype kinds an event field may be stored as: timestamps and coordinates integer or
@@ -112,10 +158,12 @@ def checked_events(x, y, t_ns, p, hw, source: Path, offset: int = 0) -> Events:
     for role, v in (("x", x), ("y", y), ("t", t_ns), ("p", p)):
         check_field_dtype(source, f"event field {role}", v.dtype, role)
     if t_ns.dtype.kind == "f":
-        bad = np.flatnonzero(~np.isfinite(t_ns))
+        bad = np.flatnonzero(~(np.abs(t_ns) < _NS_LIMIT))
         if len(bad):
-            raise ValueError(f"{source}: event {offset + bad[0]} has timestamp "
-                             f"{t_ns[bad[0]] * 1e-9} (not a finite number)")
+            value = t_ns[bad[0]] * 1e-9
+            raise ValueError(f"{source}: event {offset + bad[0]} has timestamp {value} "
+                             + ("(not a finite number)" if not np.isfinite(value) else
+                                f"s (beyond {_NS_LIMIT * 1e-9:.3g} s)"))
     for name, v in (("x", x), ("y", y)):
         if v.dtype.kind == "f":
             bad = np.flatnonzero(v != np.round(v))
@@ -132,6 +180,41 @@ def checked_events(x, y, t_ns, p, hw, source: Path, offset: int = 0) -> Events:
                              f"{p[bad[0]]}: polarity must be 0/1 (or -1/1)")
     return Events(x.astype(np.int16), y.astype(np.int16), t_ns.astype(np.int64),
                   np.where(p > 0, 1, -1).astype(np.int8), hw)
+
+
+_NS_LIMIT = 2.0 ** 63 * 0.999  # int64 nanoseconds (about 292 years)
+
+
+def seconds_to_ns(seconds: object, source: str | Path) -> int:
+    """Integer nanoseconds of a timestamp in seconds (a number or its text).
+
+    Raises:
+        ValueError: naming ``source``: not a number, or not finite or beyond int64 ns.
+    """
+    try:
+        value = float(seconds) * 1e9
+    except (TypeError, ValueError):
+        raise ValueError(f"{source}: timestamp {seconds!r} is not a number") from None
+    if not abs(value) < _NS_LIMIT:
+        raise ValueError(f"{source}: timestamp {seconds!r} s is not a finite time (at most "
+                         f"{_NS_LIMIT * 1e-9:.3g} s)")
+    return int(round(value))
+
+
+class FrameBudget:
+    """Counts the pixels of the APS frames a reader loads; refuses an image above
+    ``MAX_IMAGE_PIXELS`` or frames past ``MAX_FRAME_PIXELS`` together, before loading it."""
+
+    def __init__(self, source: str | Path) -> None:
+        self.source, self.pixels = source, 0
+
+    def take(self, hw: tuple[int, ...], what: str, count: int = 1) -> None:
+        """Account for ``count`` more frames of shape ``hw`` (a header's or dataset's)."""
+        check_image_pixels(hw, f"{self.source}: {what}")
+        self.pixels += int(hw[0]) * int(hw[1]) * int(count)
+        if self.pixels > MAX_FRAME_PIXELS:
+            raise ValueError(f"{self.source}: APS frames of more than {MAX_FRAME_PIXELS:,} "
+                             f"pixels together, more than e2sr holds at once")
 
 
 def gray_image(pixels: np.ndarray, order: str = "rgb") -> np.ndarray:

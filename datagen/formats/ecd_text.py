@@ -8,18 +8,20 @@ import logging
 from collections.abc import Iterator
 from pathlib import Path
 
-import cv2
 import numba
 import numpy as np
 
 from datagen.formats.base import (
     READ_CHUNK_EVENTS,
+    FrameBudget,
     Recording,
     checked_events,
     gray_image,
+    seconds_to_ns,
     sorted_frames,
 )
 from esim_lite.core.events import Events
+from esim_lite.core.images import read_image
 
 log = logging.getLogger(__name__)
 
@@ -150,21 +152,8 @@ def open_text(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
     events_file = folder / "events.txt" if path.is_dir() else path
     if not events_file.is_file():
         raise FileNotFoundError(f"{folder}: no events.txt")
-    images, times = [], []
     index = folder / "images.txt"
-    if index.is_file():
-        for k, line in enumerate(index.read_text().splitlines()):
-            if not line.strip() or line.startswith("#"):
-                continue
-            parts = line.split()
-            if len(parts) != 2:
-                raise ValueError(f"{index}: line {k + 1} is not 't path'")
-            img = cv2.imread(str(folder / parts[1]), cv2.IMREAD_UNCHANGED)
-            if img is None:
-                raise ValueError(f"{index}: line {k + 1}: cannot read image {parts[1]}")
-            images.append(gray_image(img, "bgr"))  # OpenCV decodes colour as BGR
-            times.append(int(round(float(parts[0]) * 1e9)))
-    frames = sorted_frames(images, times, index)
+    frames = _frames(folder, index) if index.is_file() else None
     hw = sensor_hw or (frames.hw if frames is not None else _text_extent(events_file))
 
     def chunks(size: int) -> Iterator[Events]:
@@ -174,6 +163,29 @@ def open_text(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
             done += len(t)
 
     return Recording(events_file, "text", hw, frames, chunks)
+
+
+def _frames(folder: Path, index: Path):
+    """The APS frames ``images.txt`` lists (``t path`` a line), bounded by a
+    :class:`FrameBudget` read from each image's header before it is decoded."""
+    images, times, budget = [], [], FrameBudget(index)
+    with open(index, "rb") as f:
+        for k, raw in enumerate(f):
+            line = raw.decode(errors="replace")
+            if not line.strip() or line.startswith("#"):
+                continue
+            parts = line.split()
+            if len(parts) != 2:
+                raise ValueError(f"{index}: line {k + 1} is not 't path'")
+            where = f"{index}: line {k + 1}"
+            t_ns = seconds_to_ns(parts[0], where)
+            img = read_image(folder / parts[1])
+            if img is None:
+                raise ValueError(f"{where}: cannot read image {parts[1]}")
+            budget.take(img.shape, parts[1])
+            images.append(gray_image(img, "bgr"))  # OpenCV decodes colour as BGR
+            times.append(t_ns)
+    return sorted_frames(images, times, index)
 
 
 def _text_extent(path: Path) -> tuple[int, int]:

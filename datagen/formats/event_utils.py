@@ -10,10 +10,12 @@ import h5py
 import numpy as np
 
 from datagen.formats.base import (
+    FrameBudget,
     Recording,
     check_field_dtype,
     checked_events,
     gray_image,
+    seconds_to_ns,
     sorted_frames,
 )
 from esim_lite.core.events import Events
@@ -34,16 +36,7 @@ def open_event_hdf5(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
         for name, role in FIELDS.items():
             check_field_dtype(path, f"events/{name}", f[f"events/{name}"].dtype, role)
         hw = sensor_hw or _sensor_of(f, path)
-        images, times = [], []
-        if "images" in f:
-            for name in sorted(f["images"]):
-                ds = f["images"][name]
-                if "timestamp" not in ds.attrs:
-                    raise ValueError(f"{path}: images/{name} has no timestamp attribute")
-                kind = ds.attrs.get("type", "")
-                kind = kind.decode() if isinstance(kind, bytes) else str(kind)
-                images.append(gray_image(ds[:], "bgr" if kind == "color_bgr" else "rgb"))
-                times.append(int(round(float(ds.attrs["timestamp"]) * 1e9)))
+        images, times = _images(f, path)
     frames = sorted_frames(images, times, path)
 
     def chunks(size: int) -> Iterator[Events]:
@@ -57,9 +50,31 @@ def open_event_hdf5(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
     return Recording(path, "hdf5", hw, frames, chunks)
 
 
+def _images(f: h5py.File, path: Path) -> tuple[list[np.ndarray], list[int]]:
+    """The ``images/*`` datasets as gray frames and their times (ns), each dataset's shape
+    checked against a :class:`FrameBudget` before it is read."""
+    images, times, budget = [], [], FrameBudget(path)
+    for name in sorted(f["images"]) if "images" in f else []:
+        ds = f["images"][name]
+        if not isinstance(ds, h5py.Dataset) or ds.ndim not in (2, 3):
+            raise ValueError(f"{path}: images/{name} is not an image dataset")
+        if "timestamp" not in ds.attrs:
+            raise ValueError(f"{path}: images/{name} has no timestamp attribute")
+        times.append(seconds_to_ns(ds.attrs["timestamp"], f"{path}: images/{name}"))
+        budget.take(ds.shape, f"images/{name}")
+        kind = ds.attrs.get("type", "")
+        kind = kind.decode() if isinstance(kind, bytes) else str(kind)
+        images.append(gray_image(ds[:], "bgr" if kind == "color_bgr" else "rgb"))
+    return images, times
+
+
 def _sensor_of(f: h5py.File, path: Path) -> tuple[int, int]:
     if "sensor_resolution" in f.attrs:
-        res = [int(v) for v in np.ravel(f.attrs["sensor_resolution"])]
+        try:
+            res = [int(v) for v in np.ravel(f.attrs["sensor_resolution"])]
+        except (TypeError, ValueError, OverflowError):
+            raise ValueError(f"{path}: sensor_resolution {f.attrs['sensor_resolution']!r} is "
+                             f"not a list of whole numbers") from None
         # event_utils' converter stores a colour camera's image shape, (H, W, 3)
         if len(res) == 2 or (len(res) == 3 and res[2] in (1, 3, 4)):
             return res[0], res[1]

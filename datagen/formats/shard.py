@@ -6,7 +6,7 @@ from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
-from datagen.formats.base import Recording, check_field_dtype
+from datagen.formats.base import FrameBudget, Recording, check_field_dtype
 from datagen.formats.event_utils import FIELDS
 from datagen.shard import ShardReader
 from esim_lite.core.events import Events
@@ -23,6 +23,8 @@ def open_shard(path: Path, sequence: str | None, sensor_hw: tuple[int, int] | No
         for k, dtype in reader.event_dtypes(name).items():
             check_field_dtype(path, f"{name}/events/{k}", dtype, FIELDS[k])
         hw = sensor_hw or reader.sensor_hw(name)
+        stored = reader.frame_shape(name, "lr")
+        FrameBudget(path).take(stored[1:], f"{name}/frames/lr", stored[0])
         frames = reader.frames(name, "lr")
         total = reader.num_events(name)
 

@@ -20,6 +20,8 @@ from typing import Any, TypeVar
 
 import yaml
 
+from esim_lite.core.limits import MAX_CONFIG_BYTES, MAX_CONFIG_NODES
+
 T = TypeVar("T")
 
 
@@ -190,11 +192,54 @@ def to_yaml(obj: Any) -> str:
 
 
 def load_yaml_text(cls: type[T], text: str, *, source: str = "<text>") -> T:
+    return from_mapping(cls, parse_yaml(text, source), source=source)
+
+
+def parse_yaml(text: str, source: str) -> Any:
+    """``yaml.safe_load(text)``, bounded: at most :data:`MAX_CONFIG_BYTES` of text and
+    :data:`MAX_CONFIG_NODES` values once aliases are expanded (every later step copies the
+    expanded tree, so a few lines of nested aliases would otherwise take gigabytes), no
+    alias inside itself.
+
+    Raises:
+        ConfigError: naming ``source``: not YAML, too large, too deeply nested, or an alias
+            expanding past the limit or into itself.
+    """
+    if len(text) > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{source}: {len(text):,} characters, more than a config may hold "
+                          f"({MAX_CONFIG_BYTES:,})")
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
         raise ConfigError(f"{source}: not valid YAML: {exc}") from exc
-    return from_mapping(cls, data, source=source)
+    except RecursionError:
+        raise ConfigError(f"{source}: nested too deeply to be a config") from None
+    _count_values(data, source, {}, set())
+    return data
+
+
+def _count_values(node: Any, source: str, sizes: dict[int, int], path: set[int]) -> int:
+    """Values in ``node`` with every alias expanded, counted without expanding: a node
+    shared by aliases is counted once per use from its memoised size."""
+    if not isinstance(node, (dict, list)):
+        return 1
+    key = id(node)
+    if key in sizes:
+        return sizes[key]
+    if key in path:
+        raise ConfigError(f"{source}: an alias refers to a section that holds it (a config "
+                          f"cannot contain itself)")
+    if len(path) > 100:
+        raise ConfigError(f"{source}: nested more than 100 levels deep")
+    path.add(key)
+    children = [*node.keys(), *node.values()] if isinstance(node, dict) else node
+    total = 1 + sum(_count_values(c, source, sizes, path) for c in children)
+    path.discard(key)
+    if total > MAX_CONFIG_NODES:
+        raise ConfigError(f"{source}: expands to more than {MAX_CONFIG_NODES:,} values "
+                          f"(aliases repeating aliases?); a config holds a few hundred")
+    sizes[key] = total
+    return total
 
 
 def load_yaml(cls: type[T], path: str | Path, overrides: Sequence[str] | None = None) -> T:
@@ -218,8 +263,8 @@ def load_config(cls: type[T], path: str | Path | Sequence[str | Path] | None,
     Raises:
         FileNotFoundError: a path does not exist.
         ConfigError: bad YAML, unknown key or rejected value, naming the key and the file
-            that holds it (of several, the first whose layer makes the config invalid;
-            an override's error names the last file, as with one).
+            that holds it (of several, the first whose layer makes the config invalid),
+            or the ``--set`` that carried it.
     """
     paths = [] if path is None else [path] if isinstance(path, (str, Path)) else list(path)
     layers = [(str(p), _read_mapping(Path(p))) for p in paths]
@@ -232,8 +277,8 @@ def load_config(cls: type[T], path: str | Path | Sequence[str | Path] | None,
     try:
         return from_mapping(cls, data, source=source)
     except ConfigError:
-        if len(layers) > 1:
-            _blame_layer(cls, layers)
+        if len(layers) > 1 or overrides:
+            _blame_layer(cls, layers, overrides)
         raise
 
 
@@ -241,23 +286,32 @@ def _read_mapping(path: Path) -> dict[str, Any]:
     """The top-level mapping of the YAML file at ``path`` (empty for an empty file)."""
     if not path.is_file():
         raise FileNotFoundError(f"{path}: config file not found")
+    if path.stat().st_size > MAX_CONFIG_BYTES:
+        raise ConfigError(f"{path}: {path.stat().st_size:,} bytes, more than a config may "
+                          f"hold ({MAX_CONFIG_BYTES:,})")
     try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from exc
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not a readable text file ({exc})") from exc
+    data = parse_yaml(text, str(path)) or {}
     if not isinstance(data, Mapping):
         raise ConfigError(f"{path}: the top level must be a mapping of sections (key: "
                           f"value), not a {type(data).__name__}")
     return dict(data)
 
 
-def _blame_layer(cls: type, layers: Sequence[tuple[str, Mapping[str, Any]]]) -> None:
+def _blame_layer(cls: type, layers: Sequence[tuple[str, Mapping[str, Any]]],
+                 overrides: Sequence[str] = ()) -> None:
     """Raise the error of the first file whose layer, merged over the files before it, makes
-    ``cls`` invalid (named as that file's); return if every prefix of the layers is valid."""
+    ``cls`` invalid (named as that file's), else of the first ``--set`` that does (named as
+    that ``--set``); return if every prefix of the layers and overrides is valid."""
     data: dict[str, Any] = {}
     for source, layer in layers:
         data = _deep_merge(data, layer)
         from_mapping(cls, data, source=source)
+    for item in overrides:
+        data = apply_overrides(data, [item], source=f"--set {item}")
+        from_mapping(cls, data, source=f"--set {item}")
 
 
 def apply_overrides(data: Mapping[str, Any], overrides: Sequence[str], *,
@@ -268,10 +322,7 @@ def apply_overrides(data: Mapping[str, Any], overrides: Sequence[str], *,
         if "=" not in item:
             raise ConfigError(f"{source}: override {item!r} is not of the form key=value")
         dotted, raw = item.split("=", 1)
-        try:
-            value = yaml.safe_load(raw)
-        except yaml.YAMLError as exc:
-            raise ConfigError(f"{source}: override {item!r}: bad value: {exc}") from exc
+        value = parse_yaml(raw, f"{source}: override {item!r}: bad value")
         _set_dotted(out, dotted, value, source, repr(item))
     return out
 

@@ -109,6 +109,8 @@ def index_samples(shards: list[Path], data: DataConfig, n_stacks: int, scale: in
                 if hr_camera(scale) not in cams:
                     raise ValueError(f"{path}/{seq}: no {hr_camera(scale)} frames (it has "
                                      f"{', '.join(cams)}); generate with --scale {scale}")
+                for camera in ("lr", hr_camera(scale)):
+                    reader.check_frames(seq, camera)
                 total = reader.num_events(seq)
                 idx = reader.frame_event_idx(seq)
                 t = reader.frame_times_ns(seq)

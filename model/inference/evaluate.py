@@ -50,6 +50,7 @@ from datagen.recording import Recording, open_recording
 from datagen.shard import ShardReader, find_shards
 from esim_lite.core.atomic import write_text
 from esim_lite.core.figures import contact_sheet, event_image, gray_to_rgb, write_png
+from esim_lite.core.outputs import OutputFolder, claim
 from esim_lite.core.scales import hr_camera
 from model import checkpoint
 from model.archs.e2sri_arch import mode_of
@@ -74,6 +75,8 @@ from model.stack_size import Rule, StackChoice, activity_for_rule
 
 log = logging.getLogger(__name__)
 BASELINES = ("hf", "direct", "complementary")
+OUTPUTS = ("metrics.md", "metrics.csv", "figure.png")
+"""The names :func:`evaluate` writes into its folder."""
 
 
 @dataclass(frozen=True)
@@ -284,6 +287,7 @@ def recording_outputs(rec: Recording, model: Reconstructor, options: EvalOptions
     events before it) when it has them, else outputs for the figure only."""
     if rec.frames is None:
         return unscored_sequence(rec, model, options, name)
+    rec.check_frames_match()
     ids = list(range(1, len(rec.frames)))[::options.every][:options.max_frames]
     return run_sequence(rec, model, ids, None, options, name)
 
@@ -390,7 +394,7 @@ def _observed(seq: SequenceOutputs, preds: list[np.ndarray], targets: list[np.nd
     return pairs, per_frame
 
 
-def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
+def evaluate(ckpt: str | Path, out: str | Path | OutputFolder, data: str | Path | None = None,
              recordings: list[str] | None = None, options: EvalOptions | None = None,
              first_pass: str | None = None, split: Literal["val", "all"] = "val",
              sensor_hw: tuple[int, int] | None = None, engine: str = "torch",
@@ -404,10 +408,8 @@ def evaluate(ckpt: str | Path, out: str | Path, data: str | Path | None = None,
     they appear in the figure as events | HF | ours. ``engine`` runs the network
     (:mod:`model.inference.engines`; ``calibrate`` for ``openvino-int8``)."""
     options = options or EvalOptions()
-    out = Path(out)
-    # a refused checkpoint writes nothing
-    pool = ModelPool(ckpt, options, first_pass, engine, calibrate)
-    out.mkdir(parents=True, exist_ok=True)
+    pool = ModelPool(ckpt, options, first_pass, engine, calibrate)  # a refused one writes nothing
+    out = claim(out)
     cfg = pool.config
     lpips_net = LPIPS()
     sequences: list[SequenceOutputs] = []

@@ -30,6 +30,7 @@ from datagen.formats.base import READ_CHUNK_EVENTS
 from datagen.recording import Recording
 from esim_lite.core.atomic import atomic_path, write_text
 from esim_lite.core.events import Events
+from esim_lite.core.outputs import OutputFolder, claim
 from esim_lite.core.stacking import StackConfig, stack_span_ns, stack_to_input, stacks_around
 from model import checkpoint
 from model.archs.e2sri_arch import CENTRAL_OF_MODE, E2SRI, central_input
@@ -41,6 +42,8 @@ from model.inference.temporal import consistency_step
 from model.stack_size import Activity, StackChoice, choose_stack
 
 log = logging.getLogger(__name__)
+OUTPUTS = ("frame_[0-9][0-9][0-9][0-9][0-9][0-9].png", "timestamps.txt", "video.mp4")
+"""The names :func:`reconstruct` writes into its folder."""
 Mode = Literal["main", "complementary", "duo-pass"]
 
 
@@ -88,6 +91,9 @@ class EventWindow:
         return self.offset + int(np.searchsorted(self.buf.t_ns, t_ns, side="right"))
 
     def time_of(self, index: int) -> int | None:
+        if index < self.offset:
+            raise ValueError(f"event {index} was already dropped from the window (it keeps "
+                             f"events from {self.offset} on)")
         while not self.done and self.end <= index:
             self._pull()
         return int(self.buf.t_ns[index - self.offset]) if index < self.end else None
@@ -309,7 +315,8 @@ def output_times(plan: OutputPlan, recording: Recording, window: EventWindow
     k = plan.every_events
     while (t := window.time_of(k - 1)) is not None:
         yield t, None
-        k += plan.every_events
+        # events sharing one timestamp give one output: the next is at a later time
+        k = max(k + plan.every_events, window.index_after(t) + 1)
 
 
 @dataclass(frozen=True)
@@ -319,7 +326,7 @@ class ReconstructResult:
     seconds: dict[str, float]
 
 
-def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
+def reconstruct(recording: Recording, model: Reconstructor, out: str | Path | OutputFolder,
                 plan: OutputPlan, mp4: bool = False, show_progress: bool = True,
                 limit: int | None = None, chunk: int = READ_CHUNK_EVENTS,
                 temporal: float | None = None) -> ReconstructResult:
@@ -327,7 +334,6 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
 
     ``temporal``: weight of the blind temporal-consistency post-process (None: off); it
     needs only the previous frame, so memory stays bounded."""
-    out = Path(out)
     window = model.event_window(recording.events(chunk), recording.sensor_hw, chunk)
     seconds = {"stacking": 0.0, "flow": 0.0, "network": 0.0}
     paths, times, previous = [], [], None
@@ -348,7 +354,7 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
                 image = consistency_step(previous[0], previous[1], raw, temporal)
             previous = (raw, image)
         if not paths:  # the folder appears with the first frame, never empty
-            out.mkdir(parents=True, exist_ok=True)
+            out = claim(out)
         path = out / f"frame_{len(paths):06d}.png"
         with atomic_path(path, ".tmp.png") as tmp:
             cv2.imwrite(str(tmp), np.round(image * 255).astype(np.uint8))
@@ -363,6 +369,7 @@ def reconstruct(recording: Recording, model: Reconstructor, out: str | Path,
                          f"first needs {plan.every_events if plan.at == 'events' else 1:,} "
                          f"event(s) and a stack of {model.stacks.events_per_stack:,}); "
                          f"nothing written")
+    out = claim(out)
     write_text(out / "timestamps.txt",
                "".join(f"{i} {t * 1e-9:.9f}\n" for i, t in enumerate(times)))
     if mp4 and paths:

@@ -16,6 +16,7 @@ from datagen.export import export, to_uint8
 from datagen.generate import generate
 from datagen.shard import ShardReader
 from esim_lite.core.dataconf import load_config
+from esim_lite.core.outputs import MANIFEST
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -143,8 +144,9 @@ def test_ecd_text_folder_reads_back_and_has_calib_and_groundtruth(shard, record,
 
 def test_export_cli_writes_every_sequence_and_names_a_missing_one(shard, tmp_path, capsys):
     assert main(["export", str(shard), "--format", "evreal", "--out", str(tmp_path)]) == 0
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["shard_00000_seq_000000",
-                                                           "shard_00000_seq_000001"]
+    written = sorted(p.name for p in tmp_path.iterdir() if p.name != MANIFEST)
+    assert written == ["shard_00000_seq_000000", "shard_00000_seq_000001"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [MANIFEST, *written]
     assert main(["export", str(shard), "--format", "txt", "--out", str(tmp_path / "t"),
                  "--sequence", "seq_9"]) == 2
     assert "no sequence 'seq_9'" in capsys.readouterr().err

@@ -140,6 +140,11 @@ def test_rerun_skips_complete_shards_and_redoes_broken_ones(tmp_path):
     (tmp_path / "shard_00001.h5").write_bytes(b"\x89HDF garbage")
     (tmp_path / "shard_00000.h5.tmp-12345").write_bytes(b"partial")
     (tmp_path / "shard_00002.h5").unlink()
+    # a file datagen cannot prove it wrote is never removed: refused, named, left as it is
+    with pytest.raises(ValueError, match="shard_00001.h5: is in the way of a shard"):
+        gen.generate(cfg, tmp_path, n_seq=6, seed=1, show_progress=False)
+    assert (tmp_path / "shard_00001.h5").read_bytes() == b"\x89HDF garbage"
+    (tmp_path / "shard_00001.h5").unlink()
     again = gen.generate(cfg, tmp_path, n_seq=6, seed=1, show_progress=False)
     assert (again.shards_written, again.shards_skipped) == (2, 1)
     assert not list(tmp_path.glob("*.tmp-*"))

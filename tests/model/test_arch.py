@@ -111,7 +111,9 @@ def test_stack_channels_must_match_the_stacks_at_config_load(override, tmp_path,
     net, data = (4, 3) if override.startswith("model") else (3, 2)
     expected = f"model.stack_channels ({net}) must equal data.stacks.channels ({data})"
     tiny = ROOT / "configs" / "train_tiny.yaml"
-    with pytest.raises(ConfigError, match=rf"train_tiny.yaml: .*{re.escape(expected)}"):
+    # the value came from the --set, so the error names that --set (issue 53), not the file
+    with pytest.raises(ConfigError, match=rf"^--set {re.escape(override)}: .*"
+                                          rf"{re.escape(expected)}"):
         load_config(TrainConfig, tiny, [override])
     with pytest.raises(ValueError, match=re.escape(expected)):
         TrainConfig(model=NetConfig(stack_channels=net), data=DataConfig(
