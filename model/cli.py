@@ -132,7 +132,7 @@ def _stack_arguments(p: argparse.ArgumentParser) -> None:
                    "the rule the model was trained with); see docs/evaluation.md")
 
 
-def reconstruct_main(argv: list[str] | None = None) -> int:
+def reconstruct_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="reconstruct", description="Super-resolved images from "
                                 "an event recording (shard, HDF5, ECD text, AEDAT4, raw).")
     p.add_argument("input", help="recording: .h5, events.txt or its folder, .aedat4, .raw")
@@ -162,7 +162,11 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
     p.add_argument("--device", help="cpu or cuda (default: cuda if present)")
     _engine_argument(p)
     p.add_argument("--no-progress", action="store_true")
-    args = p.parse_args(argv)
+    return p
+
+
+def reconstruct_main(argv: list[str] | None = None) -> int:
+    args = reconstruct_parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         from datagen.recording import open_recording
@@ -202,7 +206,7 @@ def reconstruct_main(argv: list[str] | None = None) -> int:
     return 0
 
 
-def evaluate_main(argv: list[str] | None = None) -> int:
+def evaluate_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="evaluate", description="PSNR/SSIM/MSE/LPIPS and E_warp "
                                 "of E2SRI and classical baselines (HF, direct integration, "
                                 "complementary filter).")
@@ -234,7 +238,11 @@ def evaluate_main(argv: list[str] | None = None) -> int:
                    "(AEDAT4 stores it) before scoring")
     fill_arguments(p)
     _engine_argument(p)
-    args = p.parse_args(argv)
+    return p
+
+
+def evaluate_main(argv: list[str] | None = None) -> int:
+    args = evaluate_parser().parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
     try:
         from model.calibration import simulated_inputs

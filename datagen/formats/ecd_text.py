@@ -27,6 +27,82 @@ log = logging.getLogger(__name__)
 
 
 @numba.njit(cache=True)
+def _parse_time(buf, i, size):
+    """A time ``digits [. digits] [e|E [+|-] digits]`` at ``buf[i]``, kept as mantissa ``m``
+    and decimal exponent so that ``t = m 10^(exp - fdigits)`` s converts to ns exactly:
+    (index after it, m, fdigits, exp, ok)."""
+    m, fdigits, exp, ok = 0, 0, 0, False
+    while i < size and 48 <= buf[i] <= 57:
+        m = m * 10 + (buf[i] - 48)
+        i += 1
+        ok = True
+    if i < size and buf[i] == 46:
+        i += 1
+        while i < size and 48 <= buf[i] <= 57:
+            if fdigits < 12:  # beyond a picosecond nothing survives the rounding
+                m = m * 10 + (buf[i] - 48)
+                fdigits += 1
+            i += 1
+            ok = True
+    if ok and i < size and (buf[i] == 101 or buf[i] == 69):  # e/E: scientific notation
+        i += 1
+        eneg = False
+        if i < size and (buf[i] == 45 or buf[i] == 43):
+            eneg = buf[i] == 45
+            i += 1
+        got = False
+        while i < size and 48 <= buf[i] <= 57:
+            exp = exp * 10 + (buf[i] - 48)
+            i += 1
+            got = True
+        ok = ok and got and exp <= 18
+        if eneg:
+            exp = -exp
+    return i, m, fdigits, exp, ok
+
+
+@numba.njit(cache=True)
+def _parse_int(buf, i, size):
+    """An integer, optionally negative, after the separators (space, tab, comma) at
+    ``buf[i]``: (index after it, value, ok)."""
+    while i < size and (buf[i] == 32 or buf[i] == 9 or buf[i] == 44):
+        i += 1
+    neg = False
+    if i < size and buf[i] == 45:
+        neg = True
+        i += 1
+    got, v = False, 0
+    while i < size and 48 <= buf[i] <= 57:
+        v = v * 10 + (buf[i] - 48)
+        i += 1
+        got = True
+    return i, -v if neg else v, got
+
+
+@numba.njit(cache=True)
+def _nanoseconds(m, fdigits, exp):
+    """``m 10^(exp - fdigits)`` seconds in integer nanoseconds, rounded to the nearest."""
+    p10 = exp - fdigits + 9
+    if p10 >= 0:
+        t = m
+        for _ in range(p10):
+            t *= 10
+        return t
+    q = 1
+    for _ in range(-p10):
+        q *= 10
+    return (m + q // 2) // q
+
+
+@numba.njit(cache=True)
+def _skip_line(buf, i, size):
+    """Index after the line break ending the line at ``buf[i]``."""
+    while i < size and buf[i] != 10:
+        i += 1
+    return i + 1
+
+
+@numba.njit(cache=True)
 def _parse_text(buf, t_ns, xs, ys, ps):
     """Parse lines ``t x y p`` from uint8 ``buf`` (complete lines). Times in seconds (plain
     or scientific notation) are turned into integer nanoseconds digit by digit: exact for up
@@ -37,79 +113,23 @@ def _parse_text(buf, t_ns, xs, ys, ps):
     while i < size:
         while i < size and (buf[i] == 32 or buf[i] == 9 or buf[i] == 13):
             i += 1
-        if i < size and buf[i] == 10:
-            i += 1
-            line += 1
-            continue
-        if i < size and buf[i] == 35:  # '#': comment line
-            while i < size and buf[i] != 10:
-                i += 1
-            i += 1
+        if i < size and (buf[i] == 10 or buf[i] == 35):  # a blank line, or '#': a comment
+            i = _skip_line(buf, i, size)
             line += 1
             continue
         if i >= size:
             break
-        # time: digits [. digits] [e|E [+|-] digits], kept as mantissa m and decimal
-        # exponent so that t = m 10^(exp - frac_digits) s is turned into ns exactly
-        m, fdigits, exp, ok = 0, 0, 0, False
-        while i < size and 48 <= buf[i] <= 57:
-            m = m * 10 + (buf[i] - 48)
-            i += 1
-            ok = True
-        if i < size and buf[i] == 46:
-            i += 1
-            while i < size and 48 <= buf[i] <= 57:
-                if fdigits < 12:  # beyond a picosecond nothing survives the rounding
-                    m = m * 10 + (buf[i] - 48)
-                    fdigits += 1
-                i += 1
-                ok = True
-        if ok and i < size and (buf[i] == 101 or buf[i] == 69):  # e/E: scientific notation
-            i += 1
-            eneg = False
-            if i < size and (buf[i] == 45 or buf[i] == 43):
-                eneg = buf[i] == 45
-                i += 1
-            got = False
-            while i < size and 48 <= buf[i] <= 57:
-                exp = exp * 10 + (buf[i] - 48)
-                i += 1
-                got = True
-            ok = ok and got and exp <= 18
-            if eneg:
-                exp = -exp
-        vals = np.zeros(3, np.int64)
-        for k in range(3):
-            while i < size and (buf[i] == 32 or buf[i] == 9 or buf[i] == 44):
-                i += 1
-            neg = False
-            if i < size and buf[i] == 45:
-                neg = True
-                i += 1
-            got = False
-            v = 0
-            while i < size and 48 <= buf[i] <= 57:
-                v = v * 10 + (buf[i] - 48)
-                i += 1
-                got = True
-            ok = ok and got
-            vals[k] = -v if neg else v
+        i, m, fdigits, exp, ok = _parse_time(buf, i, size)
+        i, x, got_x = _parse_int(buf, i, size)
+        i, y, got_y = _parse_int(buf, i, size)
+        i, p, got_p = _parse_int(buf, i, size)
+        ok = ok and got_x and got_y and got_p
         while i < size and (buf[i] == 32 or buf[i] == 9 or buf[i] == 13):
             i += 1
         if not ok or (i < size and buf[i] != 10):
             return n, line, line
-        p10 = exp - fdigits + 9
-        if p10 >= 0:
-            t = m
-            for _ in range(p10):
-                t *= 10
-        else:  # round to the nearest nanosecond
-            q = 1
-            for _ in range(-p10):
-                q *= 10
-            t = (m + q // 2) // q
-        t_ns[n] = t
-        xs[n], ys[n], ps[n] = vals[0], vals[1], vals[2]
+        t_ns[n] = _nanoseconds(m, fdigits, exp)
+        xs[n], ys[n], ps[n] = x, y, p
         n += 1
         line += 1
         i += 1
