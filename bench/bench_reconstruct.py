@@ -88,8 +88,7 @@ def engine_frames(models: list[Reconstructor], events: Events, frames: int, roun
     images: list[list[np.ndarray]] = [[] for _ in models]
     for r in range(rounds):
         for model, spent, out in zip(models, times, images):
-            window = EventWindow(iter([events]), events.sensor_hw,
-                                 history=bool(model.net.config.history))
+            window = EventWindow(iter([events]), events.sensor_hw)
             for k in range(frames + 1):
                 t = int(events.t_ns[(half + 1 + k) * per - 1])
                 start = time.perf_counter()
