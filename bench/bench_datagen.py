@@ -5,6 +5,7 @@ Run: .venv/bin/python bench/bench_datagen.py [--quick]
      .venv/bin/python bench/bench_datagen.py --ratio --compare-code DIR
      .venv/bin/python bench/bench_datagen.py --dynamic configs/datagen_dynamic.yaml [--n-seq N]
      .venv/bin/python bench/bench_datagen.py --recipe configs/datagen_realistic.yaml [--n-seq N]
+     .venv/bin/python bench/bench_datagen.py --recipes [--n-seq N] [--compare-code DIR]
 ``--ratio``: the same N default sequences generated with each backend, runs interleaved
 (homography, Mitsuba, homography, ...; this VM drifts), per worker count: median seconds
 and Mitsuba / homography. With ``--compare-code DIR`` it also runs another checkout (e.g. a
@@ -15,6 +16,11 @@ exact renderer instead of Mitsuba, interleaved, one worker: the cost of dynamic 
 sequence, per event and per render sample. ``--recipe CONFIG``: the same table for today's
 training config (configs/datagen_train.yaml's simulation) against CONFIG, with its own
 renderer and with the compiled exact one.
+``--recipes``: the clean plane (configs/datagen_train.yaml's simulation, built-in
+textures), the dynamic (configs/datagen_dynamic.yaml) and the realistic
+(configs/datagen_realistic.yaml) recipes, 1 and 2 workers, in one run (with
+``--compare-code DIR`` also that checkout's): seconds per sequence and per frame written,
+and each recipe per frame against the clean plane of the same code and worker count.
 Each case runs ``datagen generate`` as a child process into a fresh temporary folder and
 reports sequences/min, events/s (simulated events per wall second), the peak RSS of the
 largest process of the run (``getrusage(RUSAGE_CHILDREN)``: with workers, a worker or the
@@ -104,7 +110,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="today's training set against CONFIG (e.g. the realistic recipe)")
     parser.add_argument("--seed", type=int, default=0,
                         help="dataset seed for --dynamic and --recipe")
+    parser.add_argument("--recipes", action="store_true",
+                        help="clean plane, dynamic and realistic recipes, 1 and 2 workers")
     args = parser.parse_args(argv)
+    if args.recipes:
+        return recipes(args.n_seq, args.repeats, [int(w) for w in args.workers.split(",")],
+                       args.seed, args.compare_code)
     if args.dynamic:
         return dynamic(args.dynamic, args.n_seq, args.repeats, args.seed)
     if args.recipe:
@@ -202,6 +213,48 @@ def recipe(config: str, n: int, repeats: int, seed: int) -> int:
              f"{config}": (config, []),
              f"{config}, reference renderer": (config, ["simulation.render.backend=reference"])}
     return compare(cases, n, repeats, seed)
+
+
+def recipes(n: int, repeats: int, workers: list[int], seed: int, other: Path | None) -> int:
+    """The three recipes' ``n`` sequences per worker count (and code), runs interleaved;
+    medians of seconds per sequence and per frame, and per frame against the clean plane."""
+    import statistics
+
+    cfg = Path(__file__).resolve().parents[1] / "configs"
+    cases = {"clean plane": (str(cfg / "datagen_train.yaml"),
+                             ["textures.source=builtin", "textures.source_weights=null"]),
+             "dynamic": (str(cfg / "datagen_dynamic.yaml"), []),
+             "realistic": (str(cfg / "datagen_realistic.yaml"), [])}
+    codes = [("this checkout", None)] + ([(f"{other}", other)] if other else [])
+    print(f"# {' '.join(['python'] + sys.argv)}")
+    print(f"# {machine()}; {n} sequences per run, seed {seed}, {repeats} runs, "
+          f"load average {os.getloadavg()[0]:.1f} at the start")
+    print("| code | workers | recipe | seconds (median) | runs | s per sequence | frames "
+          "| s per frame | x clean per frame | events |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for w in workers:
+        times: dict[tuple[str, str], list[float]] = {}
+        last: dict[tuple[str, str], dict] = {}
+        for _ in range(repeats):
+            for label, code in codes:
+                for name, (config, sets) in cases.items():
+                    if code is not None:  # the other checkout's own configs
+                        config = str(Path(code) / "configs" / Path(config).name)
+                    r = run_case(n, w, sets, code=code, config=config, seed=seed)
+                    times.setdefault((label, name), []).append(r["seconds"])
+                    last[(label, name)] = r
+        for label, _ in codes:
+            clean = statistics.median(times[(label, "clean plane")]) / \
+                max(last[(label, "clean plane")]["frames"], 1)
+            for name in cases:
+                med = statistics.median(times[(label, name)])
+                r = last[(label, name)]
+                per_frame = med / max(r["frames"], 1)
+                runs = ", ".join(f"{t:.1f}" for t in times[(label, name)])
+                print(f"| {label} | {w} | {name} | {med:.1f} | {runs} | {med / n:.2f} | "
+                      f"{r['frames']} | {per_frame:.3f} | **{per_frame / clean:.1f}x** | "
+                      f"{r['events']:,} |", flush=True)
+    return 0
 
 
 #: The first case of :func:`compare`, the one the others are divided by.
