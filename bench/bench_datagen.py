@@ -172,14 +172,9 @@ def ratio(n: int, repeats: int, workers: list[int], other: Path | None) -> int:
           "| events | mitsuba / homography |")
     print("|---|---|---|---|---|---|---|---|---|")
     for w in workers:
-        times: dict[tuple[str, str], list[float]] = {}
-        events: dict[tuple[str, str], int] = {}
-        for _ in range(repeats):
-            for label, code in codes:
-                for backend, sets in backends.items():
-                    r = run_case(n, w, sets, code=code)
-                    times.setdefault((label, backend), []).append(r["seconds"])
-                    events[(label, backend)] = r["events"]
+        times, last = interleaved({b: (None, sets) for b, sets in backends.items()}, codes, n,
+                                  w, repeats)
+        events = {key: r["events"] for key, r in last.items()}
         for label, _ in codes:
             med = {b: statistics.median(times[(label, b)]) for b in backends}
             for backend in backends:
@@ -190,6 +185,26 @@ def ratio(n: int, repeats: int, workers: list[int], other: Path | None) -> int:
                       f"{n / med[backend] * 60:.1f} | {events[(label, backend)]:,} | {tail} |",
                       flush=True)
     return 0
+
+
+def interleaved(cases: dict[str, tuple[str | None, list[str]]],
+                codes: list[tuple[str, Path | None]], n: int, workers: int, repeats: int,
+                seed: int = 0) -> tuple[dict[tuple[str, str], list[float]],
+                                        dict[tuple[str, str], dict]]:
+    """Every (code, case) run ``repeats`` times in rotation (this VM drifts): the seconds of
+    each run and the last run's :func:`run_case` result, by ``(code label, case)``. A case's
+    config is taken from each code's own ``configs/``."""
+    times: dict[tuple[str, str], list[float]] = {}
+    last: dict[tuple[str, str], dict] = {}
+    for _ in range(repeats):
+        for label, code in codes:
+            for name, (config, sets) in cases.items():
+                if code is not None and config is not None:
+                    config = str(Path(code) / "configs" / Path(config).name)
+                r = run_case(n, workers, sets, code=code, config=config, seed=seed)
+                times.setdefault((label, name), []).append(r["seconds"])
+                last[(label, name)] = r
+    return times, last
 
 
 def dynamic(config: str, n: int, repeats: int, seed: int) -> int:
@@ -233,16 +248,7 @@ def recipes(n: int, repeats: int, workers: list[int], seed: int, other: Path | N
           "| s per frame | x clean per frame | events |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for w in workers:
-        times: dict[tuple[str, str], list[float]] = {}
-        last: dict[tuple[str, str], dict] = {}
-        for _ in range(repeats):
-            for label, code in codes:
-                for name, (config, sets) in cases.items():
-                    if code is not None:  # the other checkout's own configs
-                        config = str(Path(code) / "configs" / Path(config).name)
-                    r = run_case(n, w, sets, code=code, config=config, seed=seed)
-                    times.setdefault((label, name), []).append(r["seconds"])
-                    last[(label, name)] = r
+        times, last = interleaved(cases, codes, n, w, repeats, seed)
         for label, _ in codes:
             clean = statistics.median(times[(label, "clean plane")]) / \
                 max(last[(label, "clean plane")]["frames"], 1)
