@@ -20,7 +20,9 @@ renderer and with the compiled exact one.
 textures), the dynamic (configs/datagen_dynamic.yaml) and the realistic
 (configs/datagen_realistic.yaml) recipes, 1 and 2 workers, in one run (with
 ``--compare-code DIR`` also that checkout's): seconds per sequence and per frame written,
-and each recipe per frame against the clean plane of the same code and worker count.
+and each recipe per frame against the clean plane of the same code and worker count, in
+wall seconds and in CPU seconds of the run's processes (``RUSAGE_CHILDREN``: what a shared
+machine's load does not inflate).
 Each case runs ``datagen generate`` as a child process into a fresh temporary folder and
 reports sequences/min, events/s (simulated events per wall second), the peak RSS of the
 largest process of the run (``getrusage(RUSAGE_CHILDREN)``: with workers, a worker or the
@@ -72,7 +74,8 @@ def run_case(n_seq: int, workers: int, sets: list[str], scale: str = "2",
             cmd += ["--seed", str(seed)]
         for s in sets:
             cmd += ["--set", s]
-        before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+        before, cpu = usage.ru_maxrss, usage.ru_utime + usage.ru_stime
         start = time.perf_counter()
         env = dict(os.environ)
         if code is not None:  # another checkout's datagen, same interpreter and packages
@@ -80,7 +83,9 @@ def run_case(n_seq: int, workers: int, sets: list[str], scale: str = "2",
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=env,
                        cwd=code or Path(__file__).resolve().parents[1])
         seconds = time.perf_counter() - start
-        peak_mb = max(before, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024
+        usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+        peak_mb = max(before, usage.ru_maxrss) / 1024
+        cpu = usage.ru_utime + usage.ru_stime - cpu
         events = frames = samples = 0
         for path in out.glob("shard_*.h5"):
             with ShardReader(path) as r:
@@ -89,8 +94,8 @@ def run_case(n_seq: int, workers: int, sets: list[str], scale: str = "2",
                     frames += len(r.frame_event_idx(name))
                     samples += r.num_samples(name)
         sizes = stored_mb(out)
-    return {"seconds": seconds, "events": events, "frames": frames, "samples": samples,
-            "peak_mb": peak_mb,
+    return {"seconds": seconds, "cpu_s": cpu, "events": events, "frames": frames,
+            "samples": samples, "peak_mb": peak_mb,
             "mb_per_seq": {k: v / n_seq for k, v in sizes.items()}}
 
 
@@ -245,21 +250,24 @@ def recipes(n: int, repeats: int, workers: list[int], seed: int, other: Path | N
     print(f"# {machine()}; {n} sequences per run, seed {seed}, {repeats} runs, "
           f"load average {os.getloadavg()[0]:.1f} at the start")
     print("| code | workers | recipe | seconds (median) | runs | s per sequence | frames "
-          "| s per frame | x clean per frame | events |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+          "| s per frame | x clean per frame | CPU s per frame | x clean (CPU) | events |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for w in workers:
         times, last = interleaved(cases, codes, n, w, repeats, seed)
         for label, _ in codes:
-            clean = statistics.median(times[(label, "clean plane")]) / \
-                max(last[(label, "clean plane")]["frames"], 1)
+            base = last[(label, "clean plane")]
+            clean = statistics.median(times[(label, "clean plane")]) / max(base["frames"], 1)
+            clean_cpu = base["cpu_s"] / max(base["frames"], 1)
             for name in cases:
                 med = statistics.median(times[(label, name)])
                 r = last[(label, name)]
                 per_frame = med / max(r["frames"], 1)
+                cpu = r["cpu_s"] / max(r["frames"], 1)  # the last run's: load-proof
                 runs = ", ".join(f"{t:.1f}" for t in times[(label, name)])
                 print(f"| {label} | {w} | {name} | {med:.1f} | {runs} | {med / n:.2f} | "
-                      f"{r['frames']} | {per_frame:.3f} | **{per_frame / clean:.1f}x** | "
-                      f"{r['events']:,} |", flush=True)
+                      f"{r['frames']} | {per_frame:.3f} | {per_frame / clean:.1f}x | "
+                      f"{cpu:.3f} | **{cpu / clean_cpu:.1f}x** | {r['events']:,} |",
+                      flush=True)
     return 0
 
 
