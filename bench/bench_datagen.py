@@ -5,6 +5,7 @@ Run: .venv/bin/python bench/bench_datagen.py [--quick]
      .venv/bin/python bench/bench_datagen.py --ratio --compare-code DIR
      .venv/bin/python bench/bench_datagen.py --dynamic configs/datagen_dynamic.yaml [--n-seq N]
      .venv/bin/python bench/bench_datagen.py --recipe configs/datagen_realistic.yaml [--n-seq N]
+     .venv/bin/python bench/bench_datagen.py --recipes [--n-seq N] [--compare-code DIR]
 ``--ratio``: the same N default sequences generated with each backend, runs interleaved
 (homography, Mitsuba, homography, ...; this VM drifts), per worker count: median seconds
 and Mitsuba / homography. With ``--compare-code DIR`` it also runs another checkout (e.g. a
@@ -15,6 +16,13 @@ exact renderer instead of Mitsuba, interleaved, one worker: the cost of dynamic 
 sequence, per event and per render sample. ``--recipe CONFIG``: the same table for today's
 training config (configs/datagen_train.yaml's simulation) against CONFIG, with its own
 renderer and with the compiled exact one.
+``--recipes``: the clean plane (configs/datagen_train.yaml's simulation, built-in
+textures), the dynamic (configs/datagen_dynamic.yaml) and the realistic
+(configs/datagen_realistic.yaml) recipes, 1 and 2 workers, in one run (with
+``--compare-code DIR`` also that checkout's): seconds per sequence and per frame written,
+and each recipe per frame against the clean plane of the same code and worker count, in
+wall seconds and in CPU seconds of the run's processes (``RUSAGE_CHILDREN``: what a shared
+machine's load does not inflate).
 Each case runs ``datagen generate`` as a child process into a fresh temporary folder and
 reports sequences/min, events/s (simulated events per wall second), the peak RSS of the
 largest process of the run (``getrusage(RUSAGE_CHILDREN)``: with workers, a worker or the
@@ -66,7 +74,8 @@ def run_case(n_seq: int, workers: int, sets: list[str], scale: str = "2",
             cmd += ["--seed", str(seed)]
         for s in sets:
             cmd += ["--set", s]
-        before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+        before, cpu = usage.ru_maxrss, usage.ru_utime + usage.ru_stime
         start = time.perf_counter()
         env = dict(os.environ)
         if code is not None:  # another checkout's datagen, same interpreter and packages
@@ -74,7 +83,9 @@ def run_case(n_seq: int, workers: int, sets: list[str], scale: str = "2",
         subprocess.run(cmd, check=True, stdout=subprocess.DEVNULL, env=env,
                        cwd=code or Path(__file__).resolve().parents[1])
         seconds = time.perf_counter() - start
-        peak_mb = max(before, resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss) / 1024
+        usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+        peak_mb = max(before, usage.ru_maxrss) / 1024
+        cpu = usage.ru_utime + usage.ru_stime - cpu
         events = frames = samples = 0
         for path in out.glob("shard_*.h5"):
             with ShardReader(path) as r:
@@ -83,8 +94,8 @@ def run_case(n_seq: int, workers: int, sets: list[str], scale: str = "2",
                     frames += len(r.frame_event_idx(name))
                     samples += r.num_samples(name)
         sizes = stored_mb(out)
-    return {"seconds": seconds, "events": events, "frames": frames, "samples": samples,
-            "peak_mb": peak_mb,
+    return {"seconds": seconds, "cpu_s": cpu, "events": events, "frames": frames,
+            "samples": samples, "peak_mb": peak_mb,
             "mb_per_seq": {k: v / n_seq for k, v in sizes.items()}}
 
 
@@ -104,7 +115,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="today's training set against CONFIG (e.g. the realistic recipe)")
     parser.add_argument("--seed", type=int, default=0,
                         help="dataset seed for --dynamic and --recipe")
+    parser.add_argument("--recipes", action="store_true",
+                        help="clean plane, dynamic and realistic recipes, 1 and 2 workers")
     args = parser.parse_args(argv)
+    if args.recipes:
+        return recipes(args.n_seq, args.repeats, [int(w) for w in args.workers.split(",")],
+                       args.seed, args.compare_code)
     if args.dynamic:
         return dynamic(args.dynamic, args.n_seq, args.repeats, args.seed)
     if args.recipe:
@@ -161,14 +177,9 @@ def ratio(n: int, repeats: int, workers: list[int], other: Path | None) -> int:
           "| events | mitsuba / homography |")
     print("|---|---|---|---|---|---|---|---|---|")
     for w in workers:
-        times: dict[tuple[str, str], list[float]] = {}
-        events: dict[tuple[str, str], int] = {}
-        for _ in range(repeats):
-            for label, code in codes:
-                for backend, sets in backends.items():
-                    r = run_case(n, w, sets, code=code)
-                    times.setdefault((label, backend), []).append(r["seconds"])
-                    events[(label, backend)] = r["events"]
+        times, last = interleaved({b: (None, sets) for b, sets in backends.items()}, codes, n,
+                                  w, repeats)
+        events = {key: r["events"] for key, r in last.items()}
         for label, _ in codes:
             med = {b: statistics.median(times[(label, b)]) for b in backends}
             for backend in backends:
@@ -179,6 +190,26 @@ def ratio(n: int, repeats: int, workers: list[int], other: Path | None) -> int:
                       f"{n / med[backend] * 60:.1f} | {events[(label, backend)]:,} | {tail} |",
                       flush=True)
     return 0
+
+
+def interleaved(cases: dict[str, tuple[str | None, list[str]]],
+                codes: list[tuple[str, Path | None]], n: int, workers: int, repeats: int,
+                seed: int = 0) -> tuple[dict[tuple[str, str], list[float]],
+                                        dict[tuple[str, str], dict]]:
+    """Every (code, case) run ``repeats`` times in rotation (this VM drifts): the seconds of
+    each run and the last run's :func:`run_case` result, by ``(code label, case)``. A case's
+    config is taken from each code's own ``configs/``."""
+    times: dict[tuple[str, str], list[float]] = {}
+    last: dict[tuple[str, str], dict] = {}
+    for _ in range(repeats):
+        for label, code in codes:
+            for name, (config, sets) in cases.items():
+                if code is not None and config is not None:
+                    config = str(Path(code) / "configs" / Path(config).name)
+                r = run_case(n, workers, sets, code=code, config=config, seed=seed)
+                times.setdefault((label, name), []).append(r["seconds"])
+                last[(label, name)] = r
+    return times, last
 
 
 def dynamic(config: str, n: int, repeats: int, seed: int) -> int:
@@ -202,6 +233,42 @@ def recipe(config: str, n: int, repeats: int, seed: int) -> int:
              f"{config}": (config, []),
              f"{config}, reference renderer": (config, ["simulation.render.backend=reference"])}
     return compare(cases, n, repeats, seed)
+
+
+def recipes(n: int, repeats: int, workers: list[int], seed: int, other: Path | None) -> int:
+    """The three recipes' ``n`` sequences per worker count (and code), runs interleaved;
+    medians of seconds per sequence and per frame, and per frame against the clean plane."""
+    import statistics
+
+    cfg = Path(__file__).resolve().parents[1] / "configs"
+    cases = {"clean plane": (str(cfg / "datagen_train.yaml"),
+                             ["textures.source=builtin", "textures.source_weights=null"]),
+             "dynamic": (str(cfg / "datagen_dynamic.yaml"), []),
+             "realistic": (str(cfg / "datagen_realistic.yaml"), [])}
+    codes = [("this checkout", None)] + ([(f"{other}", other)] if other else [])
+    print(f"# {' '.join(['python'] + sys.argv)}")
+    print(f"# {machine()}; {n} sequences per run, seed {seed}, {repeats} runs, "
+          f"load average {os.getloadavg()[0]:.1f} at the start")
+    print("| code | workers | recipe | seconds (median) | runs | s per sequence | frames "
+          "| s per frame | x clean per frame | CPU s per frame | x clean (CPU) | events |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for w in workers:
+        times, last = interleaved(cases, codes, n, w, repeats, seed)
+        for label, _ in codes:
+            base = last[(label, "clean plane")]
+            clean = statistics.median(times[(label, "clean plane")]) / max(base["frames"], 1)
+            clean_cpu = base["cpu_s"] / max(base["frames"], 1)
+            for name in cases:
+                med = statistics.median(times[(label, name)])
+                r = last[(label, name)]
+                per_frame = med / max(r["frames"], 1)
+                cpu = r["cpu_s"] / max(r["frames"], 1)  # the last run's: load-proof
+                runs = ", ".join(f"{t:.1f}" for t in times[(label, name)])
+                print(f"| {label} | {w} | {name} | {med:.1f} | {runs} | {med / n:.2f} | "
+                      f"{r['frames']} | {per_frame:.3f} | {per_frame / clean:.1f}x | "
+                      f"{cpu:.3f} | **{cpu / clean_cpu:.1f}x** | {r['events']:,} |",
+                      flush=True)
+    return 0
 
 
 #: The first case of :func:`compare`, the one the others are divided by.

@@ -108,6 +108,3 @@ class SimulationConfig:
             raise ValueError("objects.static_camera_share > 0 but objects.count allows no "
                              "object and events.noise is off: a static camera would see "
                              "nothing move")
-        if obj.enabled and self.render.backend == "homography":
-            raise ValueError("render.backend: homography renders one plane; objects.count "
-                             "> 0 needs mitsuba or reference")

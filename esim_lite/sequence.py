@@ -232,7 +232,7 @@ def _run(renderer: Renderer, stage: _Stage, thresholds: ContrastThresholds,
     while t < t_end and not schedule.done():
         step_s = sampler.propose(log_img, pose, twist, *stage.motion(*state))
         # what changes with nothing moving: the low-passed signal relaxing, the lamp
-        still = min(sim.max_step(sampler.strict_budget),
+        still = min(sim.max_step(config.sampling.contrast_fraction),
                     math.inf if flicker is None else flicker.max_step(sampler.strict_budget))
         if still < step_s:
             step_s = max(still, config.sampling.min_step_s)

@@ -18,7 +18,8 @@ with ``tau`` from the new sample's intensity. A step of light therefore gives th
 exponential approach ``y(t) = L1 + (y0 - L1) exp(-t / tau)`` whatever the sample times
 (tested against that closed form). After a fast change the filtered signal keeps moving
 while the image stands still; :meth:`PhotoreceptorLowPass.max_step` bounds the next step
-so that it moves by at most the sampler's budget.
+so that it moves by at most the sampler's budget: each pixel's own share of its threshold
+in the direction it relaxes (:meth:`EventSimulator.max_step`).
 """
 
 from __future__ import annotations
@@ -94,15 +95,23 @@ class PhotoreceptorLowPass:
                      np.ascontiguousarray(log_img, np.float32), float(dt_s), cfg.cutoff_hz,
                      cfg.dark_offset, self.log_eps)
 
-    def max_step(self, budget: float) -> float:
+    def max_step(self, budget: float | np.ndarray,
+                 fall_budget: float | np.ndarray | None = None) -> float:
         """The longest next step (s) over which the filtered signal, relaxing towards the
         current input with the current time constants, moves by at most ``budget`` at
-        every pixel (inf when it is within ``budget`` of the input everywhere)."""
-        gap = np.abs(self.input - self.state)
-        far = gap > budget
+        every pixel (inf when it is within ``budget`` of the input everywhere).
+
+        ``budget`` may be per pixel (float[H, W]); with ``fall_budget``, ``budget`` holds
+        the pixels that rise towards their input and ``fall_budget`` those that fall (a
+        relaxation is monotonic, so it can only cross the levels of its own direction)."""
+        diff = self.input - self.state
+        gap = np.abs(diff)
+        allowed = np.broadcast_to(budget if fall_budget is None else
+                                  np.where(diff > 0, budget, fall_budget), gap.shape)
+        far = gap > allowed
         if not far.any():
             return math.inf
-        return float(np.min(-self._tau[far] * np.log1p(-budget / gap[far])))
+        return float(np.min(-self._tau[far] * np.log1p(-allowed[far] / gap[far])))
 
 
 @numba.njit(cache=True, nogil=True)

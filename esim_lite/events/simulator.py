@@ -151,10 +151,15 @@ class EventSimulator:
             self._c_pos, (t_ns - self.t0_ns) * 1e-9)
         return log_img if drift is None else log_img + drift
 
-    def max_step(self, budget: float) -> float:
+    def max_step(self, contrast_fraction: float) -> float:
         """The longest next step (s) that keeps the low-passed signal's own relaxation
-        within ``budget`` at every pixel (inf without a low-pass)."""
-        return math.inf if self.lowpass is None else self.lowpass.max_step(budget)
+        within ``contrast_fraction`` of each pixel's threshold in the direction it relaxes
+        (``C+`` rising, ``C-`` falling; inf without a low-pass): the sampler's rule for the
+        image, each pixel held to its own threshold."""
+        if self.lowpass is None:
+            return math.inf
+        return self.lowpass.max_step(contrast_fraction * self._c_pos,
+                                     contrast_fraction * self._c_neg)
 
     def step(self, intensity: np.ndarray, t_ns: int) -> Events:
         """Events between the previous sample and this linear intensity sample at ``t_ns``."""

@@ -33,9 +33,9 @@ class RenderConfig:
     """How frames are rendered.
 
     Attributes:
-        backend: ``mitsuba`` (the project's default), ``homography`` (exact and fast, one
-            plane only) or ``reference`` (the exact ray caster, compiled; planes and
-            moving objects).
+        backend: ``mitsuba`` (the project's default), ``homography`` (exact and fast: the
+            plane warped, objects ray cast inside their boxes) or ``reference`` (the exact
+            ray caster, compiled; planes and moving objects).
         supersample_lr: sub-pixel grid side for the event camera (box filter, s*s samples);
             against an 8x8 render, 3x3 leaves <= 2% extra events from aliasing, 2x2 <= 4.3%.
         supersample_hr: sub-pixel grid side for the HR intensity cameras (frames only).
@@ -73,13 +73,9 @@ def make_renderer(scene: PlanarScene | DynamicScene, cameras: dict[str, Intrinsi
               for name in cameras}
     supersample = {name: supersample_for(name, config) for name in cameras}
     if config.backend == "homography":
-        if dynamic.objects:
-            raise ValueError("render.backend: homography renders one plane; a scene with "
-                             "objects needs mitsuba or reference")
         from esim_lite.render.homography import HomographyRenderer
 
-        return HomographyRenderer({n: s.background for n, s in scenes.items()}, cameras,
-                                  supersample)
+        return HomographyRenderer(scenes, cameras, supersample)
     if config.backend == "reference":
         from esim_lite.render.reference import ReferenceRenderer
 

@@ -126,3 +126,45 @@ def test_a_sequence_with_the_low_pass_lags_and_keeps_its_events():
 def test_a_bad_cutoff_fails_at_load_naming_the_key(value):
     with pytest.raises(ConfigError, match="bandwidth.cutoff_hz"):
         load_config(DatagenConfig, None, [f"simulation.events.bandwidth.cutoff_hz={value}"])
+
+
+def test_max_step_holds_each_pixel_to_the_budget_of_its_own_direction():
+    """Rising pixels move by at most their ``budget``, falling ones by their
+    ``fall_budget``, per pixel; a scalar budget is the same bound for both."""
+    cfg = BandwidthConfig(cutoff_hz=300.0)
+    start = np.log(EPS + np.linspace(0.01, 1, 12, dtype=np.float32)).reshape(3, 4)
+    target = np.log(EPS + np.linspace(1, 0.01, 12, dtype=np.float32)).reshape(3, 4)
+    rise = np.linspace(0.08, 0.2, 12).reshape(3, 4)
+    fall = np.linspace(0.3, 0.1, 12).reshape(3, 4)
+    lp = PhotoreceptorLowPass(cfg, start, EPS)
+    lp.step(target, 1e-6)
+    up = lp.input > lp.state
+    assert up.any() and (~up).any()
+    scalar = lp.max_step(0.06)
+    assert scalar == lp.max_step(np.full((3, 4), 0.06), np.full((3, 4), 0.06))
+    dt = lp.max_step(rise, fall)
+    assert dt > scalar
+    before = lp.state.copy()
+    lp.step(target, dt)
+    moved = np.abs(lp.state - before)
+    allowed = np.where(up, rise, fall)
+    assert np.all(moved <= allowed * (1 + 1e-9))
+    assert np.any(moved >= allowed * (1 - 1e-6))  # and is tight
+
+
+def test_simulator_max_step_uses_each_polarity_threshold():
+    """A step up of the light: the low-passed signal rises, so ``C+`` (not the smaller
+    ``C-``) sets the bound on its relaxation."""
+    hw = (2, 3)
+    i0 = np.full(hw, 0.05, np.float32)
+    i1 = np.full(hw, 0.8, np.float32)
+    cfg = BandwidthConfig(cutoff_hz=100.0)
+    wide = EventSimulator(i0, 0, ContrastThresholds.uniform(0.6, 0.15, hw), log_eps=EPS,
+                          bandwidth=cfg)
+    narrow = EventSimulator(i0, 0, ContrastThresholds.uniform(0.15, 0.6, hw), log_eps=EPS,
+                            bandwidth=cfg)
+    for sim in (wide, narrow):
+        sim.step(i1, 1000)
+    lp = narrow.lowpass
+    assert narrow.max_step(0.5) == lp.max_step(0.5 * 0.15)
+    assert wide.max_step(0.5) == lp.max_step(0.5 * 0.6) > narrow.max_step(0.5)

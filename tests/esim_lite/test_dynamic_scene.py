@@ -339,7 +339,6 @@ def test_impossible_object_configs_fail_at_load_naming_the_key(key, value, probl
 @pytest.mark.parametrize(("sets", "problem"), [
     (["simulation.objects.count=[0, 0]", "simulation.objects.static_camera_share=0.3"],
      "static camera would see nothing move"),
-    (["simulation.render.backend=homography"], "needs mitsuba or reference"),
 ])
 def test_contradicting_object_settings_fail_at_load(sets, problem):
     with pytest.raises(ConfigError) as err:
