@@ -66,14 +66,13 @@ def _convert_union(args: tuple, value: Any, source: str, key: str) -> Any:
     """``value`` as the first member of the union ``args`` that takes it (None if allowed)."""
     if value is None and type(None) in args:
         return None
-    errors = []
     for arg in args:
         if arg is type(None):
             continue
         try:
             return _convert(arg, value, source, key)
-        except ConfigError as exc:
-            errors.append(str(exc))
+        except ConfigError:
+            pass  # the next member may take it
     _fail(source, key, f"{value!r} matches none of {args}")
 
 
