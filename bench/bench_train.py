@@ -124,12 +124,12 @@ def pipeline_rate(cfg: TrainConfig, shards: Path, steps: int, *, cache: bool, wo
 
 
 OPTIONS = [  # (label, config, cache, workers, channels_last, bf16, compile)
-    ("today: small config (select/hr32), 2 data workers, NCHW float32", "select/hr32",
+    ("small config (train_small), 2 data workers, NCHW float32", "train_small",
      False, 2, False, False, False),
-    ("+ input cache (no data workers)", "select/hr32", True, 0, False, False, False),
-    ("+ channels_last", "select/hr32", True, 0, True, False, False),
-    ("+ bfloat16 autocast", "select/hr32", True, 0, True, True, False),
-    ("+ torch.compile (float32)", "select/hr32", True, 0, True, False, True),
+    ("+ input cache (no data workers)", "train_small", True, 0, False, False, False),
+    ("+ channels_last", "train_small", True, 0, True, False, False),
+    ("+ bfloat16 autocast", "train_small", True, 0, True, True, False),
+    ("+ torch.compile (float32)", "train_small", True, 0, True, False, True),
     ("CPU variant (train_x2_cpu): cache, channels_last, float32", "train_x2_cpu", True, 0,
      True, False, False),
     ("CPU variant + bfloat16 autocast", "train_x2_cpu", True, 0, True, True, False),
@@ -179,10 +179,10 @@ def main(argv: list[str] | None = None) -> int:
         print("| config | params | batch x crop | model samples/s | RSS growth MB | "
               "data samples/s (2 workers) |")
         print("|---|---|---|---|---|---|")
-        names = ["select/hr32", "train_x2_3s", "train_x2_7s", "train_x4_3s", "train_x4_7s"]
+        names = ["train_small", "train_x2_3s", "train_x2_7s", "train_x4_3s", "train_x4_7s"]
         for name in names[:2] if args.quick else names:
             cfg = load_yaml(TrainConfig, ROOT / "configs" / f"{name}.yaml")
-            small = name == "select/hr32"
+            small = name == "train_small"
             batch = cfg.optim.batch_size if small else 1  # batch 8 of x4 7S: ~39 GB
             rate, params, grown = model_rate(cfg, 5 if small else 2, batch)
             if cfg.model.scale == 2:

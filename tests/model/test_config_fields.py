@@ -18,8 +18,8 @@ from model import checkpoint
 from model.config import RETIRED, RETIRED_AT, TrainConfig
 
 ROOT = Path(__file__).resolve().parents[2]
-CONFIGS = sorted([*(ROOT / "configs").glob("train_*.yaml"), ROOT / "configs" / "flow_pretrain.yaml",
-                  *(ROOT / "configs" / "select").glob("*.yaml")])
+CONFIGS = sorted([*(ROOT / "configs").glob("train_*.yaml"),
+                  ROOT / "configs" / "flow_pretrain.yaml"])
 
 NOT_SWITCHES = {
     # how a run runs, not what it learns (train --set, docs/configuration.md)
