@@ -13,12 +13,16 @@ tensors ``(B, n, c, H, W)``, ``(B, c_central, H, W)``, ``(B, n, 2, H, W)``, and 
   precision pinned to float32 (on CPUs with bf16 units OpenVINO would otherwise use them).
 - ``openvino-int8``: the same, on a graph quantised to int8 by NNCF
   (:mod:`model.inference.quantize`, calibrated on the inputs of the caller's ``calibrate``:
-  the CLI's are simulated). Faster, but its outputs differ from float32 by more than 1/255;
-  never chosen by ``auto``.
-- ``auto``: ``torch`` on a GPU; on a CPU the first installed of :data:`PREFERENCE`
-  (OpenVINO was the fastest, ONNX Runtime second, on the 2-core CPU of
-  ``docs/benchmarks.md``); when that engine fails to export or compile, a warning and
-  ``torch``.
+  the CLI's are simulated). Faster, but its outputs differ from float32 by more than 1/255.
+- ``auto``: ``torch`` on a GPU. On a CPU, ``openvino-int8`` when it is installed, a
+  calibration source is given and the int8 graph of these weights passed its quality check
+  (:mod:`model.inference.quality`: at least 35 dB PSNR against float32 on every one of a
+  few held-out simulated inputs, made by the same ``calibrate``; run once when the export
+  is first used and recorded beside it); otherwise the first installed of
+  :data:`PREFERENCE` (OpenVINO was the fastest float32 engine, ONNX Runtime second, on the
+  2-core CPU of ``docs/benchmarks.md``). When an engine fails to export or compile, a
+  warning and the next choice (int8 -> float32 -> ``torch``). Every engine carries
+  ``why``: a line saying why it runs (``auto``'s reason, or ``asked for``).
 
 The exported file is made once per network and engine version and kept in the user's cache
 (:mod:`model.inference.graph_cache`). The CPU engines use as many threads as torch
@@ -42,7 +46,7 @@ import torch
 
 from model import checkpoint
 from model.archs.e2sri_arch import E2SRI
-from model.inference import graph_export, quantize
+from model.inference import graph_export, quality, quantize
 from model.inference.graph_cache import CacheKey, cached_file, weights_digest
 
 log = logging.getLogger(__name__)
@@ -72,7 +76,8 @@ def installed(engine: str) -> bool:
 
 
 def choose(engine: str, device: torch.device) -> str:
-    """The engine to use for ``engine`` (``auto`` or one of :data:`ENGINES`).
+    """The engine to use for ``engine`` (``auto`` or one of :data:`ENGINES`); for ``auto``
+    the float32 choice (:func:`load_engine` may put a checked int8 graph in its place).
 
     Raises:
         ValueError: an unknown name.
@@ -101,6 +106,7 @@ class TorchEngine:
     """The network itself (eager PyTorch)."""
 
     net: E2SRI
+    why: str = "asked for"
     name: ClassVar[str] = "torch"
 
     def __call__(self, stacks: torch.Tensor, central: torch.Tensor,
@@ -114,6 +120,7 @@ class OnnxRuntimeEngine:
 
     path: Path
     threads: int
+    why: str = "asked for"
     name: ClassVar[str] = "onnxruntime"
     session: Any = field(init=False, repr=False)
     inputs: tuple[str, ...] = field(init=False)
@@ -146,6 +153,7 @@ class OpenVinoEngine:
     threads: int
     sensor_hw: tuple[int, int] | None = None
     name: str = "openvino"
+    why: str = "asked for"
     core: Any = field(init=False, repr=False)
     model: Any = field(init=False, repr=False)
     inputs: tuple[str, ...] = field(init=False)
@@ -200,24 +208,57 @@ def load_engine(engine: str, net: E2SRI, device: torch.device,
     """``net``'s forward pass on ``engine`` (``auto`` or one of :data:`ENGINES`), exported
     into (or reused from) the cache folder ``cache`` (default: :func:`cache_root`).
     ``stack_rule``: the stack rule ``net`` was trained with (``data.stack_rule``), which
-    the int8 calibration follows; ``calibrate``: what makes the int8 calibration inputs
-    (``openvino-int8`` needs it; called only when the int8 graph is exported)."""
+    the int8 calibration and quality check follow; ``calibrate``: what makes the int8
+    calibration and check inputs (``openvino-int8`` needs it, ``auto`` uses int8 only with
+    it; called only when the int8 graph is exported or first checked). The engine's
+    ``why`` says why it was chosen."""
     chosen = choose(engine, device)
+    if engine != "auto":
+        return TorchEngine(net) if chosen == "torch" else \
+            _compiled(chosen, net, sensor_hw, cache, stack_rule, calibrate)
+    if device.type != "cpu":
+        return TorchEngine(net, "auto: eager torch on a GPU")
+    int8, why = _checked_int8(net, sensor_hw, cache, stack_rule, calibrate)
+    if int8 is not None:
+        return int8
     if chosen == "torch":
-        return TorchEngine(net)
+        return TorchEngine(net, why + "; no float32 engine is installed")
     try:
-        return _compiled(chosen, net, sensor_hw, cache, stack_rule, calibrate)
+        return _compiled(chosen, net, sensor_hw, cache, stack_rule, why=why)
     except Exception as exc:
-        if engine != "auto":
-            raise
         log.warning("engine %s failed (%s: %s); using torch", chosen, type(exc).__name__, exc)
-        return TorchEngine(net)
+        return TorchEngine(net, f"{why}; {chosen} failed ({type(exc).__name__}: {exc})")
 
 
-def _compiled(engine: str, net: E2SRI, sensor_hw: tuple[int, int] | None,
-              cache: Path | None, stack_rule: str = "fixed",
-              calibrate: quantize.CalibrationSource | None = None
-              ) -> OnnxRuntimeEngine | OpenVinoEngine:
+def _checked_int8(net: E2SRI, sensor_hw: tuple[int, int] | None, cache: Path | None,
+                  stack_rule: str, calibrate: quantize.CalibrationSource | None
+                  ) -> tuple[OpenVinoEngine | None, str]:
+    """``auto``'s int8 engine when it passed its quality check (else None), and why."""
+    missing = missing_packages("openvino-int8")
+    if missing:
+        return None, f"auto: int8 needs {' and '.join(missing)} (not installed); float32"
+    if calibrate is None:
+        return None, "auto: no calibration source given to build and check int8 with; float32"
+    check = quality.DEFAULT_CHECK.for_stack_rule(stack_rule)
+    threads = torch.get_num_threads()
+    try:
+        path = _export("openvino-int8", net, cache, stack_rule, calibrate)
+        result = quality.checked(
+            path, lambda: OpenVinoEngine(path, threads, name="openvino-int8"), net,
+            functools.partial(calibrate, net, check.inputs), check)
+        if not result.passed:
+            return None, f"auto: int8 failed its quality check, {result.describe()}; float32"
+        return _compiled("openvino-int8", net, sensor_hw, cache, stack_rule, calibrate,
+                         f"auto: int8 passed its quality check, {result.describe()}"), ""
+    except Exception as exc:
+        log.warning("engine openvino-int8 failed (%s: %s); using float32",
+                    type(exc).__name__, exc)
+        return None, f"auto: int8 failed to build or check ({type(exc).__name__}: {exc})"
+
+
+def _export(engine: str, net: E2SRI, cache: Path | None, stack_rule: str,
+            calibrate: quantize.CalibrationSource | None, rebuild: bool = False) -> Path:
+    """The cached file of ``net`` for ``engine``, exported when absent (or ``rebuild``)."""
     suffix, export = _EXPORTS[engine]
     calibration = replace(quantize.DEFAULT_CALIBRATION, stack_rule=stack_rule)
     key = CacheKey(weights_digest(net, checkpoint.net_args(net)), engine,
@@ -230,19 +271,26 @@ def _compiled(engine: str, net: E2SRI, sensor_hw: tuple[int, int] | None,
                                   inputs=functools.partial(calibrate, net, calibration))
     else:
         build = functools.partial(export, net)
+    return cached_file(key, build, cache, rebuild)
+
+
+def _compiled(engine: str, net: E2SRI, sensor_hw: tuple[int, int] | None,
+              cache: Path | None, stack_rule: str = "fixed",
+              calibrate: quantize.CalibrationSource | None = None, why: str = "asked for"
+              ) -> OnnxRuntimeEngine | OpenVinoEngine:
     threads = torch.get_num_threads()
 
     def make(path: Path) -> OnnxRuntimeEngine | OpenVinoEngine:
         if engine == "onnxruntime":
-            return OnnxRuntimeEngine(path, threads)
-        return OpenVinoEngine(path, threads, sensor_hw, engine)
+            return OnnxRuntimeEngine(path, threads, why)
+        return OpenVinoEngine(path, threads, sensor_hw, engine, why)
 
-    path = cached_file(key, build, cache)
+    path = _export(engine, net, cache, stack_rule, calibrate)
     try:
         return make(path)
     except Exception as exc:  # an unreadable cache entry: export once more, then give up
         log.warning("%s: cannot be loaded (%s); exporting again", path, exc)
-        return make(cached_file(key, build, cache, rebuild=True))
+        return make(_export(engine, net, cache, stack_rule, calibrate, rebuild=True))
 
 
 def _engine_version(engine: str, calibration: quantize.Calibration) -> str:
