@@ -211,6 +211,12 @@ class Reconstructor:
         """The engine running the network (``torch`` when none was given)."""
         return getattr(self.engine, "name", "torch")
 
+    @property
+    def engine_line(self) -> str:
+        """Which engine runs the network and why: ``engine openvino-int8 (auto: int8 passed
+        its quality check, ...)``."""
+        return f"engine {self.engine_name} ({getattr(self.engine, 'why', 'asked for')})"
+
     def event_window(self, chunks: Iterator[Events], hw: tuple[int, int],
                      chunk_size: int) -> EventWindow:
         """A window over ``chunks`` holding what the stacks of one output need (SBN: a
