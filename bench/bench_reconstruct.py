@@ -180,9 +180,13 @@ def real_rows(recordings: list[str], rounds: int, limit: int | None) -> None:
             pngs = sorted((Path(tmp) / "auto0").glob("frame_*.png"))
             psnr = [png_psnr(p, Path(tmp) / "torch0" / p.name) for p in pngs]
         torch_ms, auto_ms = float(np.median(ms["torch"])), float(np.median(ms["auto"]))
+        differ = [v for v in psnr if np.isfinite(v)]  # identical PNGs have no PSNR
+        quality = (f"{min(differ):.1f} / {np.mean(differ):.1f}" if differ else "identical") \
+            + (f" ({len(psnr) - len(differ)} identical)" if differ and len(differ) < len(psnr)
+               else "")
         print(f"| {Path(recording).name} | {auto_line.removeprefix('engine ')} | "
-              f"{torch_ms:.0f} | {auto_ms:.0f} | {torch_ms / auto_ms:.2f}x | "
-              f"{min(psnr):.1f} / {np.mean(psnr):.1f} | {len(pngs)} |", flush=True)
+              f"{torch_ms:.0f} | {auto_ms:.0f} | {torch_ms / auto_ms:.2f}x | {quality} | "
+              f"{len(pngs)} |", flush=True)
 
 
 def write_h5(path: Path, n: int, chunk: int = 5_000_000) -> None:
