@@ -1,18 +1,19 @@
-"""The int8 quality check: does the quantised network reproduce the float32 one closely
-enough for ``--engine auto`` to use it?
+"""The quality check of a reduced-precision engine: does it reproduce the float32 network
+closely enough for ``--engine auto`` to use it?
 
-The check runs the int8 engine and the float32 network (eager torch, the reference) on
-held-out simulated inputs and scores the int8 output against float32's by PSNR (dB, both
-clamped to [0, 1], one value per input); it passes when the *minimum* over the inputs is at
-least :attr:`QualityCheck.threshold_db` (35 dB: the issue's bar for ``auto``'s outputs
-against torch's). The inputs follow the calibration recipe
-(:class:`model.inference.quantize.Calibration`) with another seed, so they are other
-sequences than the ones the graph was calibrated on; like the calibration inputs they are
-made by the caller's :data:`~model.inference.quantize.CalibrationSource` (running a model
-never simulates).
+The check runs the candidate engine (``openvino-bf16``; the function takes any) and the
+float32 network (eager torch, the reference) on held-out simulated inputs and scores the
+candidate's output against float32's by PSNR (dB, both clamped to [0, 1], one value per
+input); it passes when the *minimum* over the inputs is at least
+:attr:`QualityCheck.threshold_db` (35 dB: issue 50's bar for ``auto``'s outputs against
+torch's). The inputs follow the int8 calibration recipe
+(:class:`model.inference.quantize.Calibration`: a few short sequences of the default
+dataset recipe on training textures) with another seed; they are made by the caller's
+:data:`~model.inference.quantize.CalibrationSource` (running a model never simulates).
 
-The result is written as JSON beside the cached int8 export (:func:`record_path`), once per
-export and check recipe, atomically; a later ``auto`` reads it instead of checking again.
+The result is written as JSON beside the cached export the engine runs
+(:func:`record_path`, named by the engine), once per export, engine and check recipe,
+atomically; a later ``auto`` reads it instead of checking again.
 """
 
 from __future__ import annotations
@@ -31,17 +32,18 @@ from model.inference import graph_export, quantize
 
 log = logging.getLogger(__name__)
 
-CHECK_VERSION = 1
-"""Raised when what the check measures changes (it is part of the record's name)."""
+CHECK_VERSION = 2
+"""Raised when what the check measures changes (it is part of the record's name).
+2: the record names the engine checked."""
 
 
 @dataclass(frozen=True)
 class QualityCheck:
-    """What the int8 engine is checked on and the bar it must clear.
+    """What a reduced-precision engine is checked on and the bar it must clear.
 
     Attributes:
         inputs: the held-out inputs' recipe (a seed other than the calibration's).
-        threshold_db: the least PSNR (dB) of any input, int8 against float32.
+        threshold_db: the least PSNR (dB) of any input, the candidate against float32.
     """
 
     inputs: quantize.Calibration = quantize.Calibration(sequences=2, frames=24, samples=16,
@@ -59,12 +61,12 @@ class QualityCheck:
 
 
 DEFAULT_CHECK = QualityCheck()
-"""The check every int8 export gets before ``auto`` may use it (tests swap in a smaller one)."""
+"""The check an engine gets before ``auto`` may use it (tests swap in a smaller one)."""
 
 
 @dataclass(frozen=True)
 class CheckResult:
-    """One check's outcome: per-input PSNR (dB) of int8 against float32, its minimum and
+    """One check's outcome: per-input PSNR (dB) of the candidate against float32, its minimum and
     mean, the threshold, whether the minimum cleared it, and the inputs' recipe tag."""
 
     passed: bool
@@ -104,9 +106,10 @@ def run_check(candidate, reference, inputs: quantize.Inputs, check: QualityCheck
                        tuple(scores), check.threshold_db, check.inputs.tag)
 
 
-def record_path(export: Path, check: QualityCheck) -> Path:
-    """Where the check of the cached export ``export`` is recorded: beside it."""
-    return export.with_name(f"{export.name}.{check.tag}.json")
+def record_path(export: Path, engine: str, check: QualityCheck) -> Path:
+    """Where the check of ``engine`` running the cached export ``export`` is recorded:
+    beside it."""
+    return export.with_name(f"{export.name}.{engine}.{check.tag}.json")
 
 
 def read_record(path: Path) -> CheckResult | None:
@@ -121,15 +124,15 @@ def read_record(path: Path) -> CheckResult | None:
         return None
 
 
-def checked(export: Path, make_candidate, reference, make_inputs, check: QualityCheck
-            ) -> CheckResult:
-    """The check of the cached export ``export``: read from its record, else run (the
-    engine ``make_candidate()`` against ``reference`` on ``make_inputs()``, both called only
-    then) and recorded atomically."""
-    path = record_path(export, check)
+def checked(export: Path, engine: str, make_candidate, reference, make_inputs,
+            check: QualityCheck) -> CheckResult:
+    """The check of ``engine`` running the cached export ``export``: read from its record,
+    else run (``make_candidate()`` against ``reference`` on ``make_inputs()``, both called
+    only then) and recorded atomically."""
+    path = record_path(export, engine, check)
     result = read_record(path)
     if result is None:
-        log.info("checking the int8 network against float32 (%s)", check.tag)
+        log.info("checking %s against float32 (%s)", engine, check.tag)
         inputs = list(make_inputs())
         result = run_check(make_candidate(), reference, inputs, check)
         write_text(path, json.dumps(asdict(result), indent=1) + "\n")
