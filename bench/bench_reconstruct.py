@@ -112,10 +112,11 @@ def engine_frames(models: list[Reconstructor], events: Events, frames: int, roun
 
 def engine_rows(sizes: list[tuple[int, int]], frames: int, rounds: int) -> None:
     from model.calibration import simulated_inputs
-    from model.inference.engines import ENGINES, installed
+    from model.inference.engines import ENGINES, bf16_units, installed
     from model.inference.pretrained import shipped_checkpoint
 
-    available = [e for e in ENGINES if installed(e)]
+    available = [e for e in ENGINES if installed(e)
+                 and (e != "openvino-bf16" or bf16_units())]
     print("| sensor | scale | engine | events per stack | stacking ms | flow ms | network ms "
           "| total ms | network vs torch | frame vs torch | max abs diff vs torch |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
