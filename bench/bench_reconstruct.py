@@ -3,6 +3,7 @@ shipped models, and memory on long recordings.
 
 Run: .venv/bin/python bench/bench_reconstruct.py [--skip-latency] [--skip-engines]
      [--skip-memory] [--frames 5] [--rounds 3] [--sizes 128x128,240x180,346x260]
+     [--real RECORDING ...] [--limit N]
 (smoke run: --skip-latency --skip-memory --sizes 128x128 --frames 1 --rounds 1)
 Latency: full-size E2SRI (random weights; compute does not depend on them) for 3 and 7
 stacks at x2 and x4 on a 240x180 stream of synthetic events, ~7,900 events per stack (the
@@ -17,6 +18,11 @@ one warm-up frame, in each of `--rounds` rounds over the engines) for stacking
 (`stacks_at`), flow and network, and the largest difference of the output image in [0, 1]
 from torch's on the same stacks. Exports land in the user's cache (see docs/evaluation.md),
 made before timing.
+Auto on real recordings (`--real PATH`, repeatable; skipped without): the issue 50 check of
+`reconstruct` as a user runs it: the CLI as a child process with no `--engine` (auto) and
+with `--engine torch`, back to back, `--rounds` times (default 3; `--limit` frames each);
+per recording the engine auto chose and why, the median network ms per frame of each,
+their ratio, and the PSNR (min and mean over frames) of auto's PNGs against torch's.
 Memory: `reconstruct` as a child process on an event_utils HDF5 file of 1 million and of
 100 million events (written here in chunks), 5 outputs spread over each file with the small
 config; peak RSS from getrusage of the child.
@@ -106,10 +112,11 @@ def engine_frames(models: list[Reconstructor], events: Events, frames: int, roun
 
 def engine_rows(sizes: list[tuple[int, int]], frames: int, rounds: int) -> None:
     from model.calibration import simulated_inputs
-    from model.inference.engines import ENGINES, installed
+    from model.inference.engines import ENGINES, bf16_units, installed
     from model.inference.pretrained import shipped_checkpoint
 
-    available = [e for e in ENGINES if installed(e)]
+    available = [e for e in ENGINES if installed(e)
+                 and (e != "openvino-bf16" or bf16_units())]
     print("| sensor | scale | engine | events per stack | stacking ms | flow ms | network ms "
           "| total ms | network vs torch | frame vs torch | max abs diff vs torch |")
     print("|---|---|---|---|---|---|---|---|---|---|---|")
@@ -132,6 +139,55 @@ def engine_rows(sizes: list[tuple[int, int]], frames: int, rounds: int) -> None:
                       f"{reference_t['network'] / t['network']:.2f}x | "
                       f"{sum(reference_t.values()) / sum(t.values()):.2f}x | {diff:.1e} |",
                       flush=True)
+
+
+def cli_run(recording: str, out: Path, engine: str | None, limit: int | None
+            ) -> tuple[str, float]:
+    """``reconstruct`` as a child process: (its engine line, network ms per frame)."""
+    argv = [recording, "--out", str(out), "--no-progress"] + (
+        ["--engine", engine] if engine else []) + (["--limit", str(limit)] if limit else [])
+    code = ("import sys; from model.cli import reconstruct_main; "
+            f"sys.exit(reconstruct_main({argv!r}))")
+    proc = subprocess.run([sys.executable, "-c", code], check=True, capture_output=True,
+                          text=True)
+    lines = proc.stdout.splitlines()
+    engine_line = next(line for line in lines if line.startswith("engine "))
+    network = next(line for line in lines if line.startswith("wrote ")).split(" network ")[1]
+    return engine_line, float(network.split(",")[0])
+
+
+def png_psnr(a: Path, b: Path) -> float:
+    import cv2
+
+    x, y = (cv2.imread(str(p), cv2.IMREAD_GRAYSCALE).astype(np.float64) for p in (a, b))
+    mse = float(np.mean((x - y) ** 2))
+    return 10 * np.log10(255 ** 2 / mse) if mse else float("inf")
+
+
+def real_rows(recordings: list[str], rounds: int, limit: int | None) -> None:
+    print("| recording | auto's engine (why) | torch network ms | auto network ms | "
+          "network vs torch | PSNR auto vs torch, min / mean dB | frames |")
+    print("|---|---|---|---|---|---|---|")
+    for recording in recordings:
+        with tempfile.TemporaryDirectory() as tmp:
+            ms: dict[str, list[float]] = {"torch": [], "auto": []}
+            for r in range(rounds):
+                for engine in ("torch", "auto"):
+                    line, network = cli_run(recording, Path(tmp) / f"{engine}{r}",
+                                            engine if engine == "torch" else None, limit)
+                    ms[engine].append(network)
+                    if engine == "auto":
+                        auto_line = line
+            pngs = sorted((Path(tmp) / "auto0").glob("frame_*.png"))
+            psnr = [png_psnr(p, Path(tmp) / "torch0" / p.name) for p in pngs]
+        torch_ms, auto_ms = float(np.median(ms["torch"])), float(np.median(ms["auto"]))
+        differ = [v for v in psnr if np.isfinite(v)]  # identical PNGs have no PSNR
+        quality = (f"{min(differ):.1f} / {np.mean(differ):.1f}" if differ else "identical") \
+            + (f" ({len(psnr) - len(differ)} identical)" if differ and len(differ) < len(psnr)
+               else "")
+        print(f"| {Path(recording).name} | {auto_line.removeprefix('engine ')} | "
+              f"{torch_ms:.0f} | {auto_ms:.0f} | {torch_ms / auto_ms:.2f}x | {quality} | "
+              f"{len(pngs)} |", flush=True)
 
 
 def write_h5(path: Path, n: int, chunk: int = 5_000_000) -> None:
@@ -188,6 +244,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="rounds over the engines (a median over all of them)")
     parser.add_argument("--sizes", default="128x128,240x180,346x260",
                         help="sensor sizes (WxH) of the engine rows")
+    parser.add_argument("--real", action="append", default=[],
+                        help="a real recording for the auto-vs-torch rows (repeatable)")
+    parser.add_argument("--limit", type=int, help="frames per --real run (default: all)")
     args = parser.parse_args(argv)
     torch.set_num_threads(2)
     print(f"# {' '.join(['python'] + sys.argv)}; torch {torch.__version__}, CPU, 2 threads")
@@ -206,6 +265,9 @@ def main(argv: list[str] | None = None) -> int:
         print()
         sizes = [tuple(int(v) for v in size.split("x"))[::-1] for size in args.sizes.split(",")]
         engine_rows(sizes, args.frames, args.rounds)
+    if args.real:
+        print()
+        real_rows(args.real, args.rounds, args.limit)
     if not args.skip_memory:
         print("\n| events in file | file MB | recording s | last output at s | peak RSS MB | "
               "seconds |")

@@ -132,8 +132,10 @@ def cell_means(x: torch.Tensor, f: int) -> torch.Tensor:
     """Means of ``x`` over ``f x f`` cells, ``(..., H, W) -> (..., ceil(H/f), ceil(W/f))``;
     cells cut by the border average the pixels they hold. (Zero padding to a multiple of
     ``f``, divided by the same pooling of ones: graph engines refuse a pooling window
-    larger than its input, which ``ceil_mode`` would need on small inputs.)"""
+    larger than its input, which ``ceil_mode`` would need on small inputs. The ones are
+    ``x * 0 + 1``, not ``ones_like``: OpenVINO's CPU plugin has no bfloat16 pooling of the
+    constant that ``ones_like`` exports to, and refuses to compile the graph in bfloat16.)"""
     h, w = x.shape[-2:]
     pad = (0, -w % f, 0, -h % f)
-    held = F.avg_pool2d(F.pad(torch.ones_like(x[:, :1]), pad), f)
+    held = F.avg_pool2d(F.pad(x[:, :1] * 0 + 1, pad), f)
     return F.avg_pool2d(F.pad(x, pad), f) / held

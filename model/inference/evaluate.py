@@ -183,6 +183,10 @@ class ModelPool:
         log.info("%s: %s events per stack", rec.path, model.stack_choice.describe())
         return model
 
+    def engine_lines(self) -> list[str]:
+        """Per sensor size prepared, which engine ran the network and why."""
+        return [f"{hw[1]}x{hw[0]}: {model.engine_line}" for hw, model in self._by_hw.items()]
+
 
 def run_sequence(recording: Recording, model: Reconstructor, frame_ids: list[int],
                  hr_frames: list[np.ndarray] | None, options: EvalOptions,
@@ -440,7 +444,7 @@ def evaluate(ckpt: str | Path, out: str | Path | OutputFolder, data: str | Path 
     rows = [r for s in sequences if s.lr_targets
             for r in score(s, cfg.model.scale, options, lpips_net)]
     rows += average_rows(rows)
-    write_tables(rows, out, options, run_notes(sequences, options))
+    write_tables(rows, out, options, run_notes(sequences, options), pool.engine_lines())
     write_figure(sequences, out / "figure.png", cfg.model.scale)
     return rows
 
@@ -484,7 +488,9 @@ def run_notes(sequences: list[SequenceOutputs], options: EvalOptions) -> list[st
 
 
 def write_tables(rows: list[dict], out: Path, options: EvalOptions,
-                 notes: list[str] | None = None) -> None:
+                 notes: list[str] | None = None, engines: list[str] | None = None) -> None:
+    """``metrics.csv`` and ``metrics.md`` (the latter headed by the normalisation, the
+    engine of "ours" per sensor size (``engines``) and the events per stack (``notes``))."""
     metrics = ["psnr", "ssim", "mse", "lpips", "ewarp"]
     heads = ["PSNR", "SSIM", "MSE", "LPIPS", "E_warp"]
     if any("coverage" in r or "invented" in r for r in rows):  # the observed region's
@@ -501,6 +507,8 @@ def write_tables(rows: list[dict], out: Path, options: EvalOptions,
              + ("; region: the share of the frame scored, invented: the share of the pixels "
                 "outside it drawn more than 0.04 from their median level" if "invented" in metrics
                 else "") + ".", ""]
+    if engines:
+        lines += ["Network engine (ours):", "", *(f"- {e}" for e in engines), ""]
     if notes:
         lines += ["Events per stack:", "", *notes, ""]
     for proto in ("hr", "lr"):

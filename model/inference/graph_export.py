@@ -30,6 +30,10 @@ from model.archs.e2sri_arch import E2SRI
 INPUT_NAMES = ("stacks", "central", "flows")
 OUTPUT_NAME = "image"
 ONNX_OPSET = 17
+GRAPH_VERSION = 2
+"""Raised when the exported graph of the same weights changes (it is part of every cached
+export's key). 2: the context branch's cell means divide by a pooling of ``x * 0 + 1``
+(:func:`model.archs.blocks.cell_means`), which OpenVINO compiles in bfloat16."""
 _EXAMPLE_HW = (24, 32)
 
 

@@ -23,9 +23,10 @@ recipe (:class:`Calibration`); the inputs are made above ``inference/``
 (:func:`model.calibration.simulated_inputs`) and handed in as a :data:`CalibrationSource`,
 called only when an export is made.
 
-INT8 changes the outputs (unlike the float32 engines, which match torch within 1e-6): it is
-never chosen by ``--engine auto``, only when asked for. Its quality against float32 on the
-simulated test split is measured in docs/benchmarks.md.
+INT8 changes the outputs (unlike the float32 engines, which match torch within 1e-6):
+``--engine auto`` uses it only when it passed its quality check against float32
+(:mod:`model.inference.quality`). Its quality against float32 on the simulated test split is
+measured in docs/benchmarks.md.
 """
 
 from __future__ import annotations

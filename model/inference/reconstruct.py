@@ -160,8 +160,9 @@ class Reconstructor:
                    engine: str = "torch", activity: Activity | None = None,
                    calibrate: CalibrationSource | None = None) -> Reconstructor:
         """From an already loaded checkpoint ``state`` (``ckpt`` names it in errors);
-        ``engine``: ``torch``, ``onnxruntime``, ``openvino``, ``openvino-int8`` (calibrated
-        on what ``calibrate`` makes) or ``auto`` (:func:`model.inference.engines.choose`).
+        ``engine``: ``torch``, ``onnxruntime``, ``openvino``, ``openvino-bf16``,
+        ``openvino-int8`` (calibrated on what ``calibrate`` makes) or ``auto``
+        (:func:`model.inference.engines.load_engine`).
         Events per stack: ``events_per_stack``, else by the recording's ``activity``
         (active-pixel rule), else by sensor area (:func:`model.stack_size.choose_stack`)."""
         dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
@@ -210,6 +211,12 @@ class Reconstructor:
     def engine_name(self) -> str:
         """The engine running the network (``torch`` when none was given)."""
         return getattr(self.engine, "name", "torch")
+
+    @property
+    def engine_line(self) -> str:
+        """Which engine runs the network and why: ``engine openvino-bf16 (auto: bf16 (this
+        CPU's native precision) passed its quality check, ...)``."""
+        return f"engine {self.engine_name} ({getattr(self.engine, 'why', 'asked for')})"
 
     def event_window(self, chunks: Iterator[Events], hw: tuple[int, int],
                      chunk_size: int) -> EventWindow:

@@ -41,6 +41,27 @@ def engine_cache(tmp_path_factory) -> Iterator[Path]:
         os.environ[CACHE_ENV] = before
 
 
+SMALL_CALIBRATION = dict(sequences=1, frames=10, samples=8, seed=5)
+"""The int8 calibration every test export uses (test_int8.py's ``SMALL``): seconds, not a
+minute."""
+SMALL_CHECK_INPUTS = dict(sequences=1, frames=10, samples=4, seed=6)
+"""The int8 quality check's held-out inputs in tests (another seed than the calibration)."""
+
+
+@pytest.fixture(scope="session", autouse=True)
+def small_int8_recipes() -> Iterator[None]:
+    """``reconstruct``/``evaluate`` default to ``--engine auto``, which on a CPU exports,
+    calibrates and checks int8: in tests on :data:`SMALL_CALIBRATION` and
+    :data:`SMALL_CHECK_INPUTS` (the real recipes cost a minute per model)."""
+    from model.inference import quality, quantize
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(quantize, "DEFAULT_CALIBRATION", quantize.Calibration(**SMALL_CALIBRATION))
+        mp.setattr(quality, "DEFAULT_CHECK", quality.QualityCheck(
+            quantize.Calibration(**SMALL_CHECK_INPUTS)))
+        yield
+
+
 def tiny_config(*overrides: str):
     return load_config(TrainConfig, ROOT / "configs" / "train_tiny.yaml", overrides)
 

@@ -2,8 +2,9 @@
 
 Properties: the graph really runs convolutions in int8 (quantisers in front of them) except
 the ones kept in float32; its output stays close to float32 on realistic inputs it was not
-calibrated on; the export is cached and reused without simulating again; ``auto`` never
-picks it; a missing ``nncf`` is a one-line error, and so is a missing calibration source."""
+calibrated on; the export is cached and reused without simulating again; ``auto``'s float32
+choice is never it (auto's int8: test_auto_engine.py); a missing ``nncf`` is a one-line
+error, and so is a missing calibration source."""
 
 from __future__ import annotations
 
@@ -171,8 +172,8 @@ def test_the_calibration_stacks_follow_the_training_stack_rule(shipped_x2):
         quantize.Calibration(stack_rule="area")
 
 
-def test_auto_never_picks_int8_and_a_missing_nncf_is_named(monkeypatch):
-    assert engines.choose("auto", CPU) != "openvino-int8"
+def test_auto_float32_choice_is_never_int8_and_a_missing_nncf_is_named(monkeypatch):
+    assert engines.choose("auto", CPU) != "openvino-int8"  # int8 only through its check
     hide(monkeypatch, "nncf")
     with pytest.raises(EngineMissing, match=r"needs nncf, which is not installed.*e2sr\[fast\]"):
         engines.choose("openvino-int8", CPU)
