@@ -67,13 +67,16 @@ def fired_twice_share(ev: Events) -> float:
     return float(np.mean(counts >= 2))
 
 
-def test_a_texture_moving_across_the_frame_is_moving():
-    rng = np.random.default_rng(0)
+def moving_texture(rng) -> Events:
+    """A texture moving one frame width across the frame in a second."""
     wide = texture(rng, (HW[0], 3 * HW[1]))
     t = times(200, 1.0)
-    shift = np.linspace(0, HW[1], len(t)).astype(int)  # one frame width in a second
-    frames = np.stack([wide[:, s:s + HW[1]] for s in shift])
-    motion = scene_motion_of(events_of(frames, t, rng))
+    shift = np.linspace(0, HW[1], len(t)).astype(int)
+    return events_of(np.stack([wide[:, s:s + HW[1]] for s in shift]), t, rng)
+
+
+def test_a_texture_moving_across_the_frame_is_moving():
+    motion = scene_motion_of(moving_texture(np.random.default_rng(0)))
     assert motion.swept_share > 0.8 and motion.moving and motion.verdict == MOVING
     assert "moving: whole frame" in motion.describe() and "(moving from 50%)" in motion.describe()
 
