@@ -128,10 +128,10 @@ def run_benchmark(ckpt: str | Path, folder: str | Path, out: str | Path,
                   command: str = "", calibrate: CalibrationSource | None = None
                   ) -> BenchmarkResult:
     """Run and score every recording of ``folder`` (:func:`find_recordings`) with the model
-    ``ckpt``; ``options.normalize`` is ignored (both of :data:`NORMALIZATIONS` are used;
-    default options average over the APS exposures). Writes ``real_benchmark.md``, ``.csv``
-    and ``.png`` into ``out``; ``command`` is quoted at the top of the table; ``calibrate``:
-    for an ``openvino-int8`` engine."""
+    ``ckpt``; ``options.normalize`` is ignored (each recording's verdict picks the
+    normalisations, :func:`score_all`; default options average over the APS exposures).
+    Writes ``real_benchmark.md``, ``.csv`` and ``.png`` into ``out``; ``command`` is quoted
+    at the top of the table; ``calibrate``: for an ``openvino-int8`` engine."""
     start = time.perf_counter()
     found = find_recordings(folder)
     options = options or EvalOptions(exposure_average=True)
