@@ -3,13 +3,17 @@
 Run: .venv/bin/python bench/bench_real.py [--folder DIR] [--out DIR] [--checkpoint CKPT]
          [--engine auto|torch|onnxruntime|openvino] [--fill none|harmonic|flat]
 
-``--folder`` (default ``../shared/real_events`` beside the repository): ``davis346/*.aedat4``
-are scored against their APS frames under EVREAL's protocol and the affine fit, with our
-outputs averaged over each frame's exposure; ``ecd_snippets/*/events.txt`` (240x180, no
-frames) appear in the figure only. One table (``real_benchmark.md``, ``.csv``) and one
-figure (``real_benchmark.png``) in ``--out``; the logic is
-:mod:`model.inference.real_benchmark`, the protocol docs/evaluation.md. Without the folder
-it says so and exits 0.
+``--folder`` (default ``../shared/real_events`` beside the repository), searched at any
+depth: ``*.aedat4`` files and folders with ``events.txt`` + ``images.txt`` (+
+``exposures.txt``) are scored against their APS frames, every method's outputs averaged over
+each frame's exposure window; each by the verdict measured from its events (a scene moving
+across most of the frame: whole-frame PSNR/SSIM/LPIPS under EVREAL's protocol and the
+affine fit; a static camera: the observed region with ``invented``, whole-frame PSNR/SSIM
+for reference, no whole-frame LPIPS). Folders with ``events.txt`` alone (the 240x180 ECD
+snippets, no frames) appear in the figure only. One table (``real_benchmark.md``, ``.csv``)
+and one figure (``real_benchmark.png``) in ``--out``; the logic is
+:mod:`model.inference.real_benchmark` and :mod:`model.inference.scene_motion`, the protocol
+docs/evaluation.md. Without the folder it says so and exits 0.
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--stack-rule", choices=["auto", "active", "area"], default="auto",
                    help="as evaluate --stack-rule (default auto: active pixels)")
     p.add_argument("--no-exposure-average", action="store_true",
-                   help="score ours at each frame's timestamp only")
+                   help="score every method at each frame's timestamp only")
     fill_arguments(p)
     p.add_argument("--every", type=int, default=1, help="every k-th APS frame")
     p.add_argument("--max-frames", type=int, help="per recording")

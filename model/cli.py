@@ -239,8 +239,8 @@ def evaluate_parser() -> argparse.ArgumentParser:
     p.add_argument("--first-pass", help="main model checkpoint for a Duo-Pass model")
     _stack_arguments(p)
     p.add_argument("--exposure-average", action="store_true",
-                   help="average our outputs inside each APS frame's exposure window "
-                   "(AEDAT4 stores it) before scoring")
+                   help="average every method's outputs inside each APS frame's exposure "
+                   "window (AEDAT4 and a text folder's exposures.txt store it) before scoring")
     fill_arguments(p)
     _engine_argument(p)
     return p

@@ -1,6 +1,13 @@
 """The Event Camera Dataset's text layout: ``events.txt`` (``t x y p``, seconds and 0/1),
 ``images.txt`` + ``images/`` when present; a file or its folder. A numba parser reads
-it in blocks (bounded memory, exact nanoseconds from the decimal text)."""
+it in blocks (bounded memory, exact nanoseconds from the decimal text).
+
+Beside ``images.txt`` an ``exposures.txt`` may give each frame's exposure window, one line
+``index source_frame start end`` (``index``: the frame's line among ``images.txt``'s frames,
+from 0; ``source_frame``: its number in the source, kept for provenance; ``start``/``end``
+in seconds, the same clock as the events), into ``Recording.exposures_ns``: the layout of
+the eSL-Net / EDI examples in ``../shared/real_events`` (there a window is the exposure
+itself, or the span around it that holds it)."""
 
 from __future__ import annotations
 
@@ -18,6 +25,7 @@ from datagen.formats.base import (
     checked_events,
     gray_image,
     seconds_to_ns,
+    sorted_exposures,
     sorted_frames,
 )
 from esim_lite.core.events import Events
@@ -173,7 +181,11 @@ def open_text(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
     if not events_file.is_file():
         raise FileNotFoundError(f"{folder}: no events.txt")
     index = folder / "images.txt"
-    frames = _frames(folder, index) if index.is_file() else None
+    frames, exposures = None, None
+    if index.is_file():
+        images, times = _frames(folder, index)
+        frames = sorted_frames(images, times, index)
+        exposures = _exposures(folder / "exposures.txt", times)
     hw = sensor_hw or (frames.hw if frames is not None else _text_extent(events_file))
 
     def chunks(size: int) -> Iterator[Events]:
@@ -182,12 +194,13 @@ def open_text(path: Path, sensor_hw: tuple[int, int] | None) -> Recording:
             yield checked_events(x, y, t, p, hw, events_file, done)
             done += len(t)
 
-    return Recording(events_file, "text", hw, frames, chunks)
+    return Recording(events_file, "text", hw, frames, chunks, exposures)
 
 
-def _frames(folder: Path, index: Path):
-    """The APS frames ``images.txt`` lists (``t path`` a line), bounded by a
-    :class:`FrameBudget` read from each image's header before it is decoded."""
+def _frames(folder: Path, index: Path) -> tuple[list[np.ndarray], list[int]]:
+    """(images, t_ns) of the APS frames ``images.txt`` lists (``t path`` a line), in its
+    order, bounded by a :class:`FrameBudget` read from each image's header before it is
+    decoded."""
     images, times, budget = [], [], FrameBudget(index)
     with open(index, "rb") as f:
         for k, raw in enumerate(f):
@@ -205,7 +218,47 @@ def _frames(folder: Path, index: Path):
             budget.take(img.shape, parts[1])
             images.append(gray_image(img, "bgr"))  # OpenCV decodes colour as BGR
             times.append(t_ns)
-    return sorted_frames(images, times, index)
+    return images, times
+
+
+def _exposures(path: Path, times: list[int]) -> np.ndarray | None:
+    """int64[T, 2] exposure windows from ``path`` (module doc) for the frames stamped
+    ``times`` (``images.txt``'s order), in the order of the sorted frames; None when there
+    is no such file or no frame.
+
+    Raises:
+        ValueError: naming ``path`` and the line: not four fields, an index outside the
+            frames or given twice, a frame without a window, a window ending before it
+            starts or not holding its frame's timestamp.
+    """
+    if not path.is_file() or not times:
+        return None
+    windows: dict[int, tuple[int, int]] = {}
+    with open(path, "rb") as f:
+        for k, raw in enumerate(f):
+            line = raw.decode(errors="replace")
+            if not line.strip() or line.lstrip().startswith("#"):
+                continue
+            where = f"{path}: line {k + 1}"
+            parts = line.split()
+            if len(parts) != 4 or not parts[0].isdigit():
+                raise ValueError(f"{where} is not 'index source_frame start end'")
+            i = int(parts[0])
+            if i >= len(times) or i in windows:
+                raise ValueError(f"{where}: frame index {i} "
+                                 + ("given twice" if i in windows else
+                                    f"outside images.txt's {len(times)} frames"))
+            start, end = seconds_to_ns(parts[2], where), seconds_to_ns(parts[3], where)
+            if not start <= times[i] <= end:
+                raise ValueError(f"{where}: frame {i}'s window {parts[2]}..{parts[3]} s does "
+                                 f"not hold its timestamp {times[i] * 1e-9:.9f} s")
+            windows[i] = (start, end)
+    missing = sorted(set(range(len(times))) - set(windows))
+    if missing:
+        raise ValueError(f"{path}: no window for frame(s) {missing[:5]} of images.txt's "
+                         f"{len(times)}")
+    return sorted_exposures(times, [windows[i][0] for i in range(len(times))],
+                            [windows[i][1] for i in range(len(times))], path)
 
 
 def _text_extent(path: Path) -> tuple[int, int]:

@@ -23,9 +23,10 @@ made inside it: what event-only methods can know, apart from what no event saw.
 
 Scoring real recordings: events per stack are chosen per recording
 (:mod:`model.stack_size`; the active-pixel rule by default for real files, the
-area rule for our shards); with ``exposure_average`` our outputs inside each APS frame's
-exposure window are averaged before scoring (:mod:`model.inference.exposure`; the
-baselines stay at the frame's timestamp).
+area rule for our shards); with ``exposure_average`` every method's outputs inside each APS
+frame's exposure window are averaged before scoring (:mod:`model.inference.exposure`): ours
+at our stack boundaries there and at the frame, the baselines at the same times from the
+previous frame on (an event filter cannot go back).
 
 Temporal stability (the paper's Table 6): ``E_warp`` between consecutive outputs with the
 flow of the ground-truth frames; ``ours+tc`` is our outputs after the blind post-process
@@ -34,6 +35,7 @@ flow of the ground-truth frames; ``ours+tc`` is our outputs after the blind post
 
 from __future__ import annotations
 
+import copy
 import csv
 import io
 import logging
@@ -84,7 +86,7 @@ class EvalOptions:
     """``normalize``: see the module doc; ``every``: evaluate every k-th eligible frame;
     ``max_frames`` per sequence; ``tc_weight``: weight of the warped previous output in the
     temporal post-process; ``stack_rule`` and ``events_per_stack`` choose the stacks
-    (:mod:`model.stack_size`); ``exposure_average``: average our outputs over
+    (:mod:`model.stack_size`); ``exposure_average``: average every method's outputs over
     each APS frame's exposure window where the file stores it; ``references``: also score
     the information-free references and, with ``ceilings``, the whole-frame ceilings
     (:mod:`model.inference.references`); ``fill``: what our outputs get where no event
@@ -199,16 +201,19 @@ def run_sequence(recording: Recording, model: Reconstructor, frame_ids: list[int
     exposures = recording.exposures_ns if options.exposure_average else None
     chunk_size = READ_CHUNK_EVENTS
     window = model.event_window(recording.events(chunk_size), recording.sensor_hw, chunk_size)
-    fed, next_frame = 0, 0
-    window.pin = fed  # the baselines have consumed the events before this index
+    fed, next_frame, fed_t = 0, 0, None
+    window.pin = fed  # the baselines have consumed the events before this index (and time)
     for pos, k in enumerate(frame_ids):
         t = int(frames.t_ns[k])
         given = model.stacks_at(window, t)
         anchor = given.anchor
         aps = _aps_of(model, frames, k)
         ours, _ = model.run(given.stacks, aps)
+        exposure, times = None, [t]
         if exposures is not None:
-            ours, n = _over_exposure(model, window, t, ours, aps, exposures[k])
+            exposure = exposures[k]
+            times = exposure_times(model, window, t, exposure)
+            ours, n = _over_exposure(model, window, t, ours, aps, times, exposure)
             out.averaged.append(n)
         # baselines see every event up to t and the APS frames strictly before t, in order
         while next_frame < len(frames) and frames.t_ns[next_frame] < t:
@@ -219,12 +224,12 @@ def run_sequence(recording: Recording, model: Reconstructor, frame_ids: list[int
                 f.add_events(since)
                 f.add_frame(frames.intensity[next_frame], tf)
             fed, next_frame = max(fed, upto), next_frame + 1
+            fed_t = tf if fed_t is None else max(fed_t, tf)
             window.pin = fed
-        chunk, _ = window.slice(fed, anchor)
-        for m, f in filters.items():
-            f.add_events(chunk)
-            out.images[m].append(f.image(t))  # at sensor size; upsampled for the HR protocol
-        fed = window.pin = anchor
+        for m, img in _baseline_images(filters, window, fed, fed_t, times, t, exposure).items():
+            out.images[m].append(img)  # at sensor size; upsampled for the HR protocol
+        fed, fed_t = anchor, t
+        window.pin = fed
         keep = min(fed, given.first)
         if exposures is not None and pos + 1 < len(frame_ids):  # the next exposure's start
             keep = min(keep, model.first_needed(window, int(exposures[frame_ids[pos + 1], 0])))
@@ -242,14 +247,46 @@ def _aps_of(model: Reconstructor, frames, k: int) -> np.ndarray | None:
     return frames.intensity[k] if model.net.config.central == "aps" else None
 
 
-def _over_exposure(model: Reconstructor, window, t: int, at_t: np.ndarray,
-                   aps: np.ndarray | None, exposure: np.ndarray) -> tuple[np.ndarray, int]:
-    """Our outputs at the stack boundaries inside ``exposure`` and at ``t`` (``at_t``,
-    already made), averaged over the window (:func:`exposure_average`)."""
+def exposure_times(model: Reconstructor, window, t: int, exposure: np.ndarray) -> list[int]:
+    """The times every method is sampled at for a frame at ``t`` with ``exposure`` (start,
+    end): our stack boundaries inside it and ``t`` (:mod:`model.inference.exposure`)."""
     start, end = int(exposure[0]), int(exposure[1])
-    times = sorted(set(boundary_times(window, model.stacks.events_per_stack, start, end)) | {t})
+    return sorted(set(boundary_times(window, model.stacks.events_per_stack, start, end)) | {t})
+
+
+def _over_exposure(model: Reconstructor, window, t: int, at_t: np.ndarray,
+                   aps: np.ndarray | None, times: list[int], exposure: np.ndarray
+                   ) -> tuple[np.ndarray, int]:
+    """Our outputs at ``times`` (at ``t``: ``at_t``, already made), averaged over
+    ``exposure`` (:func:`exposure_average`)."""
     images = [at_t if u == t else _run_at(model, window, u, aps) for u in times]
-    return exposure_average(times, images, (start, end))
+    return exposure_average(times, images, (int(exposure[0]), int(exposure[1])))
+
+
+def _baseline_images(filters: dict[str, EventFilter], window, fed: int, fed_t: int | None,
+                     times: list[int], t: int, exposure: np.ndarray | None
+                     ) -> dict[str, np.ndarray]:
+    """Each baseline's image at ``t`` (``exposure`` None), or the mean of its images at
+    ``times`` averaged over ``exposure`` as ours is. The filters have the events before index
+    ``fed`` (up to time ``fed_t``) and end with those up to ``t``; the samples after ``t``
+    are taken on copies, and samples before ``fed_t`` (a window reaching back past the
+    previous frame) are left out: a filter cannot go back."""
+    samples = [u for u in times if fed_t is None or u >= fed_t]
+    images: dict[str, list[np.ndarray]] = {m: [] for m in filters}
+    pos, fed_now = fed, filters
+    for u in samples:
+        if u > t and fed_now is filters:  # past the frame: feed copies, keep the filters at t
+            fed_now = copy.deepcopy(filters)
+        upto = window.index_after(u)
+        chunk = window.slice(pos, upto)[0]
+        for m, f in fed_now.items():
+            f.add_events(chunk)
+            images[m].append(f.image(u))
+        pos = upto
+    if exposure is None:
+        return {m: imgs[0] for m, imgs in images.items()}
+    span = (int(exposure[0]), int(exposure[1]))
+    return {m: exposure_average(samples, imgs, span)[0] for m, imgs in images.items()}
 
 
 def _run_at(model: Reconstructor, window, t: int, aps: np.ndarray | None) -> np.ndarray:

@@ -1,12 +1,15 @@
 """APS frames integrate light over an exposure window; our outputs are instants.
 
-An AEDAT4 frame carries its exposure (``Recording.exposures_ns``: start and end). To score
+An AEDAT4 frame carries its exposure, a text folder's ``exposures.txt`` a window holding it
+(``Recording.exposures_ns``: start and end). To score
 an output against such a frame fairly, the outputs whose timestamps fall inside the window
 are averaged (the nearest one when none does), the discrete version of the frame's time
 integral. The outputs considered are the ones the model makes anyway: one at every stack
 boundary (every ``events_per_stack``-th event counted from the recording's first, where
 ``reconstruct --at events`` puts them) inside the window, plus the one at the frame's own
-timestamp that ``evaluate`` scores without averaging.
+timestamp that ``evaluate`` scores without averaging. The baselines (event filters) are
+sampled at the same times, from the previous frame's time on, and averaged the same way
+(:func:`model.inference.evaluate.run_sequence`).
 """
 
 from __future__ import annotations

@@ -3,6 +3,7 @@ takes, and evaluation's streamed result against a direct in-memory computation."
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -87,3 +88,40 @@ def test_evaluation_averages_our_outputs_over_each_exposure(tiny_checkpoint):
                                                       max_frames=1), "plain")
     assert not plain.averaged
     assert not np.allclose(plain.images["ours"][0], seq.images["ours"][0])
+
+
+def test_evaluation_averages_the_baselines_over_each_exposure_like_ours(tiny_checkpoint):
+    """HF and direct integration are sampled at our times inside the window (those a filter
+    can still reach: from the previous frame on) and averaged; each sample equals a fresh
+    filter fed every event up to it."""
+    from model.inference.baselines import EventFilter
+    from model.inference.evaluate import EvalOptions, ModelPool, recording_outputs
+
+    rec = centred_recording()
+    options = EvalOptions(baselines=("hf", "direct"), temporal=False, exposure_average=True,
+                          stack_rule="area")
+    model = ModelPool(tiny_checkpoint, options).for_recording(rec)
+    seq = recording_outputs(rec, model, options, "centred")
+    plain = recording_outputs(rec, model, replace(options, exposure_average=False), "plain")
+    all_events = rec.read_all()
+    per = model.stacks.events_per_stack
+    boundaries = all_events.t_ns[per - 1::per]
+    for pos, k in enumerate(range(1, len(rec.frames))):
+        start, end = rec.exposures_ns[k]
+        t, before = int(rec.frames.t_ns[k]), int(rec.frames.t_ns[k - 1])
+        times = sorted({int(u) for u in boundaries if start <= u <= end} | {t})
+        samples = [u for u in times if u >= before]
+        assert len(samples) >= 3 and any(u > t for u in samples)
+        for method in ("hf", "direct"):
+            expected = []
+            for u in samples:
+                f = EventFilter(method, rec.sensor_hw, options.filters)
+                f.add_events(all_events.slice(0, int(np.searchsorted(all_events.t_ns, u, "right"))))
+                expected.append(f.image(u))
+            np.testing.assert_allclose(seq.images[method][pos], np.mean(expected, axis=0),
+                                       atol=1e-6)
+            # without averaging: the image at the frame's time (with it, the later frames'
+            # samples above show that the samples taken past a frame left the filters alone)
+            fresh = EventFilter(method, rec.sensor_hw, options.filters)
+            fresh.add_events(all_events.slice(0, int(np.searchsorted(all_events.t_ns, t, "right"))))
+            np.testing.assert_allclose(plain.images[method][pos], fresh.image(t), atol=1e-6)
