@@ -69,7 +69,7 @@ def test_evaluate_on_held_out_shards_and_a_recording(tiny_shards, tiny_checkpoin
     assert "HR output vs HR ground truth" in table and "APS/LR frame" in table
     # the engine of ours and why, per sensor size (auto: int8 or float32 by its check)
     engine_lines = table.split("Network engine (ours):\n\n")[1].split("\n\n")[0]
-    assert re.fullmatch(r"- 64x48: engine (openvino-int8|openvino|onnxruntime|torch) "
+    assert re.fullmatch(r"- 64x48: engine (openvino-bf16|openvino|onnxruntime|torch) "
                         r"\(auto: .+\)", engine_lines.splitlines()[-1])
     assert f"{rec.parent.name}/{rec.name}" in table and "| average |" in table
     rows = (out / "metrics.csv").read_text().splitlines()
