@@ -7,7 +7,7 @@ exact point where its ray meets the plane. The sub-pixel grid is rendered as one
 intrinsics scaled by ``s`` (see :meth:`Intrinsics.scaled`) and block-averaged.
 
 With objects (a :class:`DynamicScene`), the background is warped as above and only the
-samples inside an object's image-space box (:func:`sample_box`, the rays that can meet its
+samples inside an object's image-space box (:func:`sample_boxes`, the rays that can meet its
 patch) are traced, by the reference renderer's rules (:func:`nearest_hit`: nearest
 alpha-tested hit in float64, bilinear texel): most samples of a view see the background
 alone, so this costs a fraction of tracing every sample.
@@ -30,7 +30,7 @@ from esim_lite.geometry.visibility import (
     camera_in_objects,
     nearest_hit,
     object_frames,
-    sample_box,
+    sample_boxes,
 )
 
 
@@ -75,18 +75,18 @@ class HomographyRenderer:
     @staticmethod
     def _overlay(scene: DynamicScene, fine: Intrinsics, pose: Pose,
                  objects: tuple[Pose, ...], img: np.ndarray) -> np.ndarray:
+        """The objects drawn into ``img`` (the freshly warped background: changed in
+        place, no copy)."""
         packed = scene.packed
-        boxes = np.array([sample_box(fine, pose, o, g[0], g[1])
-                          for o, g in zip(objects, packed.geom)], np.int64).reshape(-1, 4)
+        r_wo, t_wo = object_frames(scene, objects)
+        boxes = sample_boxes(fine, pose, r_wo, t_wo, packed.geom)
         if not np.any((boxes[:, 1] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 2])):
             return img
-        r_wo, t_wo = object_frames(scene, objects)
-        out = img.copy()
-        _overlay_kernel(out, fine.fx, fine.fy, fine.cx, fine.cy,
+        _overlay_kernel(img, fine.fx, fine.fy, fine.cx, fine.cy,
                         np.ascontiguousarray(pose.r_wc, np.float64),
                         np.ascontiguousarray(pose.t_wc, np.float64), r_wo, t_wo, packed.geom,
                         packed.shapes, packed.alphas, packed.texels, boxes, ALPHA_CUTOFF)
-        return out
+        return img
 
     def close(self) -> None:
         pass
