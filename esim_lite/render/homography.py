@@ -51,6 +51,7 @@ class HomographyRenderer:
         self.scenes = {name: as_dynamic(scene) for name, scene in scenes.items()}
         self.cameras = dict(cameras)
         self.supersample, self._fine = sample_grids(self.cameras, supersample)
+        self._kept: dict[str, tuple[tuple[bytes, bytes], np.ndarray]] = {}
 
     def render(self, camera: str, pose: Pose, objects: Sequence[Pose] = ()) -> np.ndarray:
         """float32[H, W] linear intensity seen by ``camera`` at ``pose`` with the scene's
@@ -61,16 +62,33 @@ class HomographyRenderer:
         if len(objects) != len(scene.objects):
             raise ValueError(f"camera {camera!r}: the scene has {len(scene.objects)} "
                              f"objects, render() got {len(objects)} object poses")
-        bg = scene.background
-        m = bg.texture_from_image(fine, pose)
-        img = cv2.warpPerspective(bg.texture, m, (fine.width, fine.height),
-                                  flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                  borderMode=cv2.BORDER_REPLICATE)
         if objects:
-            img = self._overlay(scene, fine, pose, objects, img)
+            img = self._overlay(scene, fine, pose, objects, self._background(camera, pose))
+        else:
+            img = self._warp(scene, fine, pose)
         if s == 1:
             return img
         return cv2.resize(img, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
+
+    @staticmethod
+    def _warp(scene: DynamicScene, fine: Intrinsics, pose: Pose) -> np.ndarray:
+        """float32[H*s, W*s]: the background plane's samples at ``pose``."""
+        bg = scene.background
+        return cv2.warpPerspective(bg.texture, bg.texture_from_image(fine, pose),
+                                   (fine.width, fine.height),
+                                   flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                   borderMode=cv2.BORDER_REPLICATE)
+
+    def _background(self, camera: str, pose: Pose) -> np.ndarray:
+        """A fresh copy of the background's samples at ``pose``, for the objects to be drawn
+        into. The last warp of each camera is kept and reused while the camera does not
+        move (a static camera watching moving objects: its poses are bit-identical)."""
+        key = (pose.r_wc.tobytes(), pose.t_wc.tobytes())
+        kept = self._kept.get(camera)
+        if kept is None or kept[0] != key:
+            kept = (key, self._warp(self.scenes[camera], self._fine[camera], pose))
+            self._kept[camera] = kept
+        return kept[1].copy()
 
     @staticmethod
     def _overlay(scene: DynamicScene, fine: Intrinsics, pose: Pose,

@@ -314,3 +314,26 @@ def test_sample_boxes_equal_sample_box_for_each_object(background, seed):
     np.testing.assert_array_equal(boxes, np.array(expected, np.int64))
     assert tuple(expected[-2]) == (0, fine.width, 0, fine.height)
     assert tuple(expected[-1]) == (0, 0, 0, 0)
+
+
+def test_homography_backend_reuses_the_background_only_while_the_camera_stays(background):
+    """A static camera's background warp is kept between renders: each render equals a
+    fresh renderer's, whether the objects moved, the camera moved, or it came back."""
+    rng = np.random.default_rng(7)
+    objects, poses = random_objects(rng, 4)
+    scene = DynamicScene(background, tuple(objects))
+    cam = Intrinsics.from_fov(80, 64, 60.0)
+    config = RenderConfig(backend="homography", supersample_lr=3)
+    kept = make_renderer(scene, {"lr": cam}, config)
+    moved = [Pose(p.r_wc, p.t_wc + np.array([0.03, -0.02, 0.0])) for p in poses]
+    other = Pose(camera_pose().r_wc, camera_pose().t_wc + np.array([0.05, 0.0, 0.0]))
+    images = []
+    for pose, objs in ((camera_pose(), poses), (camera_pose(), moved), (other, poses),
+                       (camera_pose(), poses)):
+        img = kept.render("lr", pose, objs)
+        fresh = make_renderer(scene, {"lr": cam}, config).render("lr", pose, objs)
+        np.testing.assert_array_equal(img, fresh)
+        images.append(img)
+    assert not np.array_equal(images[0], images[1])
+    assert not np.array_equal(images[0], images[2])
+    np.testing.assert_array_equal(images[0], images[3])
