@@ -7,7 +7,7 @@ exact point where its ray meets the plane. The sub-pixel grid is rendered as one
 intrinsics scaled by ``s`` (see :meth:`Intrinsics.scaled`) and block-averaged.
 
 With objects (a :class:`DynamicScene`), the background is warped as above and only the
-samples inside an object's image-space box (:func:`sample_box`, the rays that can meet its
+samples inside an object's image-space box (:func:`sample_boxes`, the rays that can meet its
 patch) are traced, by the reference renderer's rules (:func:`nearest_hit`: nearest
 alpha-tested hit in float64, bilinear texel): most samples of a view see the background
 alone, so this costs a fraction of tracing every sample.
@@ -30,7 +30,7 @@ from esim_lite.geometry.visibility import (
     camera_in_objects,
     nearest_hit,
     object_frames,
-    sample_box,
+    sample_boxes,
 )
 
 
@@ -51,6 +51,7 @@ class HomographyRenderer:
         self.scenes = {name: as_dynamic(scene) for name, scene in scenes.items()}
         self.cameras = dict(cameras)
         self.supersample, self._fine = sample_grids(self.cameras, supersample)
+        self._kept: dict[str, tuple[tuple[bytes, bytes], np.ndarray]] = {}
 
     def render(self, camera: str, pose: Pose, objects: Sequence[Pose] = ()) -> np.ndarray:
         """float32[H, W] linear intensity seen by ``camera`` at ``pose`` with the scene's
@@ -61,32 +62,49 @@ class HomographyRenderer:
         if len(objects) != len(scene.objects):
             raise ValueError(f"camera {camera!r}: the scene has {len(scene.objects)} "
                              f"objects, render() got {len(objects)} object poses")
-        bg = scene.background
-        m = bg.texture_from_image(fine, pose)
-        img = cv2.warpPerspective(bg.texture, m, (fine.width, fine.height),
-                                  flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                  borderMode=cv2.BORDER_REPLICATE)
         if objects:
-            img = self._overlay(scene, fine, pose, objects, img)
+            img = self._overlay(scene, fine, pose, objects, self._background(camera, pose))
+        else:
+            img = self._warp(scene, fine, pose)
         if s == 1:
             return img
         return cv2.resize(img, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
 
     @staticmethod
+    def _warp(scene: DynamicScene, fine: Intrinsics, pose: Pose) -> np.ndarray:
+        """float32[H*s, W*s]: the background plane's samples at ``pose``."""
+        bg = scene.background
+        return cv2.warpPerspective(bg.texture, bg.texture_from_image(fine, pose),
+                                   (fine.width, fine.height),
+                                   flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                   borderMode=cv2.BORDER_REPLICATE)
+
+    def _background(self, camera: str, pose: Pose) -> np.ndarray:
+        """A fresh copy of the background's samples at ``pose``, for the objects to be drawn
+        into. The last warp of each camera is kept and reused while the camera does not
+        move (a static camera watching moving objects: its poses are bit-identical)."""
+        key = (pose.r_wc.tobytes(), pose.t_wc.tobytes())
+        kept = self._kept.get(camera)
+        if kept is None or kept[0] != key:
+            kept = (key, self._warp(self.scenes[camera], self._fine[camera], pose))
+            self._kept[camera] = kept
+        return kept[1].copy()
+
+    @staticmethod
     def _overlay(scene: DynamicScene, fine: Intrinsics, pose: Pose,
                  objects: tuple[Pose, ...], img: np.ndarray) -> np.ndarray:
+        """The objects drawn into ``img`` (the freshly warped background: changed in
+        place, no copy)."""
         packed = scene.packed
-        boxes = np.array([sample_box(fine, pose, o, g[0], g[1])
-                          for o, g in zip(objects, packed.geom)], np.int64).reshape(-1, 4)
+        r_wo, t_wo = object_frames(scene, objects)
+        boxes = sample_boxes(fine, pose, r_wo, t_wo, packed.geom)
         if not np.any((boxes[:, 1] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 2])):
             return img
-        r_wo, t_wo = object_frames(scene, objects)
-        out = img.copy()
-        _overlay_kernel(out, fine.fx, fine.fy, fine.cx, fine.cy,
+        _overlay_kernel(img, fine.fx, fine.fy, fine.cx, fine.cy,
                         np.ascontiguousarray(pose.r_wc, np.float64),
                         np.ascontiguousarray(pose.t_wc, np.float64), r_wo, t_wo, packed.geom,
                         packed.shapes, packed.alphas, packed.texels, boxes, ALPHA_CUTOFF)
-        return out
+        return img
 
     def close(self) -> None:
         pass

@@ -32,7 +32,7 @@ from esim_lite.geometry.visibility import (
     camera_in_objects,
     nearest_hit,
     object_frames,
-    sample_box,
+    sample_boxes,
     shade,
     trace,
 )
@@ -74,8 +74,7 @@ class ReferenceRenderer:
         objects = tuple(objects)
         r_wo, t_wo = object_frames(scene, objects)
         packed = scene.packed
-        boxes = np.array([sample_box(fine, pose, o, g[0], g[1])
-                          for o, g in zip(objects, packed.geom)], np.int64).reshape(-1, 4)
+        boxes = sample_boxes(fine, pose, r_wo, t_wo, packed.geom)
         tex, bg_map = self._background[camera]
         if self.threads is not None:
             numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))

@@ -12,7 +12,7 @@ from esim_lite.geometry.objects import DynamicScene, ObjectPatch, relative_pose
 from esim_lite.geometry.pose import Pose, so3_exp
 from esim_lite.geometry.scene import PlanarScene
 from esim_lite.geometry.trajectory import LOOK_DOWN, BSplineTrajectory
-from esim_lite.geometry.visibility import trace
+from esim_lite.geometry.visibility import object_frames, sample_box, sample_boxes, trace
 from esim_lite.render.mitsuba import MitsubaRenderer
 from esim_lite.render.reference import ReferenceRenderer
 from esim_lite.render.renderer import RenderConfig, make_renderer
@@ -289,3 +289,51 @@ def test_compiled_reference_is_the_same_whatever_the_threads(background):
         "lr", camera_pose(), poses) for t in (None, 1, 2)]
     for other in images[1:]:
         np.testing.assert_array_equal(images[0], other)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_sample_boxes_equal_sample_box_for_each_object(background, seed):
+    """The compiled boxes of all objects at once against :func:`sample_box` per object, on
+    random scenes plus an object partly behind the camera (whole grid) and one wholly
+    behind it (empty box)."""
+    rng = np.random.default_rng(seed)
+    objects, poses = random_objects(rng, int(rng.integers(3, 9)))
+    flip = so3_exp(np.array([np.pi, 0.0, 0.0]))
+    near = Pose(so3_exp(np.array([1.3, 0.0, 0.2])), camera_pose().t_wc + [0.0, 0.05, -0.05])
+    behind = Pose(flip, camera_pose().t_wc + camera_pose().r_wc @ np.array([0.0, 0.0, -0.5]))
+    for pose in (near, behind):
+        objects.append(ObjectPatch(PlanarScene(np.ones((8, 8), np.float32), 0.6, 0.6),
+                                   np.ones((8, 8), np.float32), still(pose)))
+        poses.append(pose)
+    scene = DynamicScene(background, tuple(objects))
+    fine = Intrinsics.from_fov(96, 80, 60.0).scaled(3)
+    r_wo, t_wo = object_frames(scene, tuple(poses))
+    boxes = sample_boxes(fine, camera_pose(), r_wo, t_wo, scene.packed.geom)
+    expected = [sample_box(fine, camera_pose(), p, g[0], g[1])
+                for p, g in zip(poses, scene.packed.geom)]
+    np.testing.assert_array_equal(boxes, np.array(expected, np.int64))
+    assert tuple(expected[-2]) == (0, fine.width, 0, fine.height)
+    assert tuple(expected[-1]) == (0, 0, 0, 0)
+
+
+def test_homography_backend_reuses_the_background_only_while_the_camera_stays(background):
+    """A static camera's background warp is kept between renders: each render equals a
+    fresh renderer's, whether the objects moved, the camera moved, or it came back."""
+    rng = np.random.default_rng(7)
+    objects, poses = random_objects(rng, 4)
+    scene = DynamicScene(background, tuple(objects))
+    cam = Intrinsics.from_fov(80, 64, 60.0)
+    config = RenderConfig(backend="homography", supersample_lr=3)
+    kept = make_renderer(scene, {"lr": cam}, config)
+    moved = [Pose(p.r_wc, p.t_wc + np.array([0.03, -0.02, 0.0])) for p in poses]
+    other = Pose(camera_pose().r_wc, camera_pose().t_wc + np.array([0.05, 0.0, 0.0]))
+    images = []
+    for pose, objs in ((camera_pose(), poses), (camera_pose(), moved), (other, poses),
+                       (camera_pose(), poses)):
+        img = kept.render("lr", pose, objs)
+        fresh = make_renderer(scene, {"lr": cam}, config).render("lr", pose, objs)
+        np.testing.assert_array_equal(img, fresh)
+        images.append(img)
+    assert not np.array_equal(images[0], images[1])
+    assert not np.array_equal(images[0], images[2])
+    np.testing.assert_array_equal(images[0], images[3])
