@@ -94,8 +94,9 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--scale", help="HR scales: 2, 4, 8 or several, e.g. 2,4 "
                      "(default from the config)")
     gen.add_argument("--textures", nargs="+", metavar="SOURCE",
-                     help="one or more folders or zip/pk3 files of images, or 'builtin' "
-                          "(default: built-in)")
+                     help="one or more folders or zip/pk3 files of images, or 'builtin'; "
+                          "replaces the config's sources and their weights (default: the "
+                          "config's, else built-in)")
     gen.add_argument("--texture-split", choices=["all", "train", "test"],
                      help="use only the train or test part of every texture source")
     gen.add_argument("--workers", type=int, default=os.cpu_count() or 1,
@@ -185,6 +186,7 @@ def _flag_values(args: argparse.Namespace) -> dict[str, object]:
     if args.textures:
         sources = [str(t) for t in args.textures]
         values["textures.source"] = sources[0] if len(sources) == 1 else sources
+        values["textures.source_weights"] = None  # a config's weights were for its sources
     if args.texture_split:
         values["textures.split"] = args.texture_split
     return values
