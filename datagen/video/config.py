@@ -102,7 +102,7 @@ class VideoConfig:
     interpolator: Literal["flow", "linear"] = "flow"
     work_scale: int = 2
     colour: Literal["srgb", "linear"] = "srgb"
-    scene_cut_fraction: float | None = 0.6
+    scene_cut_fraction: float | None = 0.75
     flow: FlowConfig = field(default_factory=FlowConfig)
 
     def __post_init__(self) -> None:
