@@ -277,3 +277,27 @@ def test_the_shards_load_as_training_samples(tmp_path):
     assert tuple(sample["lr"].shape) == (1, crop, crop)
     assert tuple(sample["hr"].shape) == (1, 2 * crop, 2 * crop)
     assert sample["stacks"].abs().sum() > 0
+
+
+def test_the_config_files_load_and_the_default_one_is_the_builtin_defaults():
+    root = Path(__file__).resolve().parents[2] / "configs"
+    assert load_config(FromVideoConfig, root / "from_video.yaml") == FromVideoConfig()
+    real = load_config(FromVideoConfig, [root / "from_video.yaml",
+                                         root / "from_video_realistic.yaml"])
+    assert real.sensor_ranges.enabled and real.simulation.events.random_start
+    preset = load_config(FromVideoConfig, [root / "from_video.yaml",
+                                           root / "sensors" / "davis346.yaml"])
+    assert preset.simulation.events.refractory_ns == 282000  # a sensor preset layers on
+
+
+def test_a_realistic_sensor_runs_and_records_its_draw(tmp_path):
+    root = Path(__file__).resolve().parents[2] / "configs"
+    video = moving_video(tmp_path / "clip.mkv", 6)
+    cfg = load_config(FromVideoConfig, [root / "from_video_realistic.yaml"], [
+        f"simulation.camera.width={SENSOR[1]}", f"simulation.camera.height={SENSOR[0]}",
+        "video.frames_per_sequence=6", "sensor_ranges.flicker_share=1.0"])
+    from_video([video], tmp_path / "out", cfg, seed=5, show_progress=False)
+    with ShardReader(find_shards(tmp_path / "out")[0]) as r:
+        sensor = r.sensor("seq_000000")
+        assert sensor is not None and sensor["flicker_hz"] in (100.0, 120.0)
+        assert r.num_events("seq_000000") > 0
