@@ -99,8 +99,8 @@ def recording_name(path: Path) -> str:
 
 def run_benchmark(ckpt: str | Path, folder: str | Path, out: str | Path,
                   options: EvalOptions | None = None, engine: str = "auto",
-                  command: str = "", calibrate: CalibrationSource | None = None
-                  ) -> BenchmarkResult:
+                  command: str = "", calibrate: CalibrationSource | None = None,
+                  model_only: bool = False) -> BenchmarkResult:
     """Run and score every recording of ``folder`` (:func:`find_recordings`) with the model
     ``ckpt``; ``options.normalize`` is ignored (both of :data:`NORMALIZATIONS` are used;
     default options average over the APS exposures). Writes ``real_benchmark.md``, ``.csv``
@@ -124,7 +124,7 @@ def run_benchmark(ckpt: str | Path, folder: str | Path, out: str | Path,
                                        model.stack_choice.describe(),
                                        None if stats is None else stats.describe(),
                                        tuple(seq.averaged)))
-    rows = score_all(sequences, pool.config.model.scale, options)
+    rows = score_all(sequences, pool.config.model.scale, options, model_only)
     seconds = time.perf_counter() - start
     table, table_csv = out / "real_benchmark.md", out / "real_benchmark.csv"
     used = f"{engine} ({', '.join(sorted(engines))})" if engine == "auto" else engine
@@ -134,17 +134,19 @@ def run_benchmark(ckpt: str | Path, folder: str | Path, out: str | Path,
     return BenchmarkResult(rows, reports, table, table_csv, figure, seconds)
 
 
-def score_all(sequences: list[SequenceOutputs], scale: int, options: EvalOptions
-              ) -> list[dict]:
+def score_all(sequences: list[SequenceOutputs], scale: int, options: EvalOptions,
+              model_only: bool = False) -> list[dict]:
     """Rows of :func:`score` (plus per-method averages over recordings) under each of
-    :data:`NORMALIZATIONS`, each row tagged with its ``normalize``."""
+    :data:`NORMALIZATIONS`, each row tagged with its ``normalize``; ``model_only``: without
+    the floors and ceilings (they do not depend on the model)."""
     lpips_net = LPIPS()
     rows, ceilings = [], None
     order = {s.name: i for i, s in enumerate(sequences)}
     for norm in NORMALIZATIONS:
         # the ceilings are compared as they are: one set of rows serves every whole-frame
         # normalisation (the harmonic one is a Laplace solve per frame)
-        opts = replace(options, normalize=norm, references=True, ceilings=ceilings is None)
+        opts = replace(options, normalize=norm, references=not model_only,
+                       ceilings=ceilings is None and not model_only)
         part = [r for s in sequences if s.lr_targets for r in score(s, scale, opts, lpips_net)]
         if norm != "observed":
             if ceilings is None:
