@@ -48,6 +48,10 @@ def main(argv: list[str] | None = None) -> int:
     fill_arguments(p)
     p.add_argument("--every", type=int, default=1, help="every k-th APS frame")
     p.add_argument("--max-frames", type=int, help="per recording")
+    p.add_argument("--model-only", action="store_true",
+                   help="score the model alone: no classical baselines, floors or ceilings "
+                        "(they do not depend on the model; most of the run's time on a "
+                        "loaded machine), e.g. to compare checkpoints")
     args = p.parse_args(argv)
     command = " ".join([".venv/bin/python bench/bench_real.py",
                         shlex.join(sys.argv[1:] if argv is None else argv)]).strip()
@@ -65,11 +69,13 @@ def main(argv: list[str] | None = None) -> int:
     options = EvalOptions(every=args.every, max_frames=args.max_frames,
                           stack_rule=args.stack_rule, events_per_stack=args.events_per_stack,
                           exposure_average=not args.no_exposure_average,
-                          fill=fill_config(args))
+                          fill=fill_config(args),
+                          **({"baselines": (), "temporal": False} if args.model_only else {}))
     start = time.perf_counter()
     try:
         result = run_benchmark(resolve(args.checkpoint, args.scale), folder, args.out,
-                               options, args.engine, command, simulated_inputs)
+                               options, args.engine, command, simulated_inputs,
+                               model_only=args.model_only)
     except (FileNotFoundError, ValueError) as exc:
         print(f"bench_real: error: {exc}", file=sys.stderr)
         return 2

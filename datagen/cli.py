@@ -1,4 +1,5 @@
-"""datagen: synthetic event-camera datasets (HDF5 shards) for E2SRI training."""
+"""datagen: synthetic event-camera datasets (HDF5 shards) for E2SRI training, from
+simulated scenes or from videos."""
 
 from __future__ import annotations
 
@@ -109,6 +110,35 @@ def build_parser() -> argparse.ArgumentParser:
                           "(default 1); auto: SLURM_ARRAY_TASK_COUNT")
     gen.add_argument("--no-progress", action="store_true", help="no progress bar")
 
+    vid = sub.add_parser("from-video", help="videos (files, folders of frames) into an SR "
+                         "training set: HR frames, LR frames and simulated LR events")
+    vid.add_argument("inputs", nargs="+", metavar="INPUT",
+                     help="a video file (anything OpenCV reads), a folder of frames with "
+                          "timestamps.txt (seconds, one a line) or --fps, or a folder of "
+                          "videos; several make one dataset")
+    vid.add_argument("--out", required=True, help="output folder for shard_XXXXX.h5 files")
+    vid.add_argument("--config", action="append",
+                     help="YAML config (default: built-in, see configs/from_video.yaml); "
+                          "several are layered in order, e.g. a sensor preset last")
+    vid.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                     help="override a config value, e.g. video.frames_per_sequence=16")
+    vid.add_argument("--scale", type=int, choices=SCALES,
+                     help="the HR scale (default from the config)")
+    vid.add_argument("--sensor-size", help="the LR event sensor, WxH (default from the "
+                     "config, 128x128)")
+    vid.add_argument("--interpolator", choices=["flow", "linear"],
+                     help="time between frames: flow (default) or linear (esim_py's rule)")
+    vid.add_argument("--fps", type=float, help="frame rate of frame folders without "
+                     "timestamps.txt")
+    vid.add_argument("--seed", type=int, default=0, help="dataset seed (default 0)")
+    vid.add_argument("--workers", type=int, default=os.cpu_count() or 1,
+                     help="worker processes (default: all cores)")
+    vid.add_argument("--shard-index", type=_index_or_auto, default=0,
+                     help="this job's index in a job array (default 0); auto: SLURM")
+    vid.add_argument("--num-shards", type=_index_or_auto, default=1,
+                     help="jobs splitting the dataset (default 1); auto: SLURM")
+    vid.add_argument("--no-progress", action="store_true", help="no progress bar")
+
     ins = sub.add_parser("inspect", help="summarise shards (events, frames, objects, "
                          "ground truth, stored bytes)")
     ins.add_argument("target", help="a shard file or a folder of shards")
@@ -195,17 +225,45 @@ def _flag_values(args: argparse.Namespace) -> dict[str, object]:
 def _generate(args: argparse.Namespace) -> int:
     from datagen.generate import generate
 
-    if args.workers < 1:
-        raise ValueError(f"--workers must be at least 1, got {args.workers}")
-    workers = cap_workers(args.workers)
-    if workers < args.workers:
-        log.warning("--workers %d: capped at the %d cores of this machine (more processes "
-                    "would only hold more memory)", args.workers, workers)
+    workers = _workers(args.workers)
     shard_index, num_shards = array_job(args.shard_index, args.num_shards)
     config = load_config(DatagenConfig, args.config, args.set, _flag_values(args))
     summary = generate(config, args.out, args.n_seq, seed=args.seed, workers=workers,
                        shard_index=shard_index, num_shards=num_shards,
                        show_progress=not args.no_progress)
+    print(summary.line())
+    print(f"shards in {Path(args.out).resolve()}")
+    return 0
+
+
+def _workers(requested: int) -> int:
+    if requested < 1:
+        raise ValueError(f"--workers must be at least 1, got {requested}")
+    workers = cap_workers(requested)
+    if workers < requested:
+        log.warning("--workers %d: capped at the %d cores of this machine (more processes "
+                    "would only hold more memory)", requested, workers)
+    return workers
+
+
+def _from_video(args: argparse.Namespace) -> int:
+    from datagen.video.config import FromVideoConfig
+    from datagen.video.from_video import from_video
+
+    workers = _workers(args.workers)
+    shard_index, num_shards = array_job(args.shard_index, args.num_shards)
+    values: dict[str, object] = {}
+    if args.scale:
+        values["simulation.camera.scales"] = [args.scale]
+    hw = _sensor_size(args.sensor_size)
+    if hw is not None:
+        values["simulation.camera.height"], values["simulation.camera.width"] = hw
+    if args.interpolator:
+        values["video.interpolator"] = args.interpolator
+    config = load_config(FromVideoConfig, args.config, args.set, values)
+    summary = from_video(args.inputs, args.out, config, seed=args.seed, workers=workers,
+                         fps=args.fps, shard_index=shard_index, num_shards=num_shards,
+                         show_progress=not args.no_progress)
     print(summary.line())
     print(f"shards in {Path(args.out).resolve()}")
     return 0
@@ -220,6 +278,8 @@ def main(argv: list[str] | None = None) -> int:
             return _generate(args)
         if args.command == "calibrate":
             return _calibrate(args)
+        if args.command == "from-video":
+            return _from_video(args)
         paths = find_shards(args.target)
         if args.command == "inspect":
             from datagen.summary import describe_shard

@@ -13,7 +13,13 @@ seq_000012/                      attrs: sensor_resolution [H, W], num_events, nu
                                         static_camera; with sensor_ranges on also the
                                         sequence's sensor (SENSOR_ATTRS: refractory_ns,
                                         mismatch_std, shot_rate_hz, ..., flicker_hz
-                                        (0 = no lamp), flicker_depth, flicker_area)
+                                        (0 = no lamp), flicker_depth, flicker_area);
+                                        made from a video (datagen from-video) also its
+                                        provenance (VIDEO_ATTRS: source_path,
+                                        source_sha256, source_kind, source_frame_start,
+                                        source_frame_stop, source_t0_s, interpolator,
+                                        scene_cuts), renderer video:<interpolator> and
+                                        texture the source's name
   events/xs, ys      int16[N]    column, row
   events/ts          float64[N]  seconds (exact to the nanosecond for t < 10^6 s)
   events/ps          uint8[N]    1 = ON (brighter), 0 = OFF
@@ -31,6 +37,9 @@ seq_000012/                      attrs: sensor_resolution [H, W], num_events, nu
   cameras/<name>     attrs fx, fy, cx, cy, width, height (lr, hr_x2, ...)
   scene              attrs width_m, height_m, texture_hw; plane z = 0, normal +z
   trajectory/        positions [K,3], rotations [K,3,3], attr knot_spacing_s, duration_s
+                     (a from-video sequence has no scene and no trajectory; its frame and
+                     sample poses are NaN beside their times, its cameras' intrinsics
+                     nominal)
   objects/obj_000/   one group per object (obj_k has surface id k + 1): positions [K,3],
                      rotations [K,3,3] (object-to-world B-spline), alpha uint8[h,w]
                      (round(255 a), exact for 0/1 masks); attrs knot_spacing_s, duration_s,
@@ -87,6 +96,41 @@ _GROUND_TRUTH_DTYPE = {"flow": np.dtype(np.float32), "depth": np.dtype(np.float3
 SENSOR_ATTRS = ("refractory_ns", "mismatch_std", "mismatch_relative", "shot_rate_hz",
                 "shot_bright_factor", "leak_rate_hz", "hot_pixel_fraction", "hot_pixel_rate_hz",
                 "cutoff_hz", "flicker_hz", "flicker_depth", "flicker_area")
+
+
+#: Sequence attributes of a from-video sequence's provenance (``datagen from-video``).
+VIDEO_ATTRS = ("source_path", "source_sha256", "source_kind", "source_frame_start",
+               "source_frame_stop", "source_t0_s", "interpolator", "scene_cuts")
+
+
+@dataclass(frozen=True)
+class VideoProvenance:
+    """Where a from-video sequence came from (stored as :data:`VIDEO_ATTRS`).
+
+    Attributes:
+        path: the video file or frame folder (as given, resolved).
+        sha256: its digest (see ``datagen.video.source.Source``).
+        kind: ``video`` or ``frames``.
+        frame_start, frame_stop: the source's frames ``start .. stop - 1`` made it.
+        t0_s: the source's time of frame ``frame_start`` (the sequence's time 0).
+        interpolator: ``flow`` or ``linear``.
+        scene_cuts: how many scene cuts the sensor restarted at.
+    """
+
+    path: Path
+    sha256: str
+    kind: str
+    frame_start: int
+    frame_stop: int
+    t0_s: float
+    interpolator: str
+    scene_cuts: int = 0
+
+    def attrs(self) -> dict[str, object]:
+        return {"source_path": str(self.path), "source_sha256": self.sha256,
+                "source_kind": self.kind, "source_frame_start": self.frame_start,
+                "source_frame_stop": self.frame_stop, "source_t0_s": self.t0_s,
+                "interpolator": self.interpolator, "scene_cuts": self.scene_cuts}
 
 
 def frame_dtype(min_threshold: float) -> np.dtype:
@@ -204,13 +248,43 @@ class ShardWriter:
         if unknown:
             raise ValueError(f"unknown ground truth kind(s) {unknown} (expected any of "
                              f"{', '.join(GROUND_TRUTH_KINDS)})")
-        thresholds = spec.thresholds
-        g = self.file.create_group(sequence_name(spec.index))
+        g = self._open_sequence(spec.index, spec.seed, spec.thresholds, cameras, log_eps,
+                                renderer, spec.texture_name, ground_truth)
+        self._write_scene_and_trajectory(g, spec)
+        if isinstance(spec.scene, DynamicScene):  # a configuration with moving objects
+            self._write_objects(g, spec)
+        if spec.sensor_drawn:  # a configuration with sensor ranges
+            g.attrs.update(sensor_attrs(spec.events))
+        self._write_thresholds(g, spec.thresholds)
+
+    def begin_video_sequence(self, index: int, seed: int, thresholds: ContrastThresholds,
+                             cameras: dict[str, Intrinsics], log_eps: float,
+                             source: VideoProvenance, events: EventConfig | None = None
+                             ) -> None:
+        """Start the group of sequence ``index`` made from a video by ``datagen
+        from-video``: no scene, trajectory or poses (a video has none; its frame and
+        sample poses are stored as NaN beside their times), the video's provenance
+        (:data:`VIDEO_ATTRS`) instead; ``renderer`` is ``video:<interpolator>`` and
+        ``texture`` the source's file name. ``events``: the sequence's drawn sensor (None:
+        the config's, nothing drawn)."""
+        g = self._open_sequence(index, seed, thresholds, cameras, log_eps,
+                                f"video:{source.interpolator}", source.path.name, ())
+        g.attrs.update(source.attrs())
+        if events is not None:
+            g.attrs.update(sensor_attrs(events))
+        self._write_thresholds(g, thresholds)
+
+    def _open_sequence(self, index: int, seed: int, thresholds: ContrastThresholds,
+                       cameras: dict[str, Intrinsics], log_eps: float, renderer: str,
+                       texture: str, ground_truth: tuple[str, ...]) -> h5py.Group:
+        """The sequence's group with its common attributes and its empty events, frames
+        and sample poses."""
+        g = self.file.create_group(sequence_name(index))
         self._group, lr = g, cameras["lr"]
         self._dtype = frame_dtype(thresholds.min_threshold)
-        g.attrs.update({"sensor_resolution": [lr.height, lr.width], "index": spec.index,
-                        "seed": spec.seed, "log_eps": log_eps, "renderer": renderer,
-                        "texture": spec.texture_name, "frame_dtype": self._dtype.name,
+        g.attrs.update({"sensor_resolution": [lr.height, lr.width], "index": index,
+                        "seed": seed, "log_eps": log_eps, "renderer": renderer,
+                        "texture": texture, "frame_dtype": self._dtype.name,
                         "contrast_threshold_pos": thresholds.pos,
                         "contrast_threshold_neg": thresholds.neg})
         ev = g.create_group("events")
@@ -221,11 +295,10 @@ class ShardWriter:
         self._truth = tuple(k for k in GROUND_TRUTH_KINDS if k in ground_truth)
         self._create_frames(g, cameras)
         g.create_dataset("poses", (0, 8), np.float64, maxshape=(None, 8), chunks=(1024, 8))
-        self._write_scene_and_trajectory(g, spec)
-        if isinstance(spec.scene, DynamicScene):  # a configuration with moving objects
-            self._write_objects(g, spec)
-        if spec.sensor_drawn:  # a configuration with sensor ranges
-            g.attrs.update(sensor_attrs(spec.events))
+        return g
+
+    def _write_thresholds(self, g: h5py.Group, thresholds: ContrastThresholds) -> None:
+        """The per-pixel maps (only with mismatch); then the event counters start."""
         if thresholds.has_mismatch:
             th = g.create_group("thresholds")
             th.create_dataset("pos_map", data=thresholds.pos_map.astype(np.float32))
@@ -351,9 +424,13 @@ class ShardWriter:
         if len(rows):
             self._append(self._group["poses"], rows)
 
-    def end_sequence(self) -> None:
+    def end_sequence(self, scene_cuts: int | None = None) -> None:
+        """Close the sequence; ``scene_cuts``: a from-video sequence's count, known only
+        now."""
         self._flush_events(whole_chunks=False)
         g = self._group
+        if scene_cuts is not None:
+            g.attrs["scene_cuts"] = int(scene_cuts)
         ts = g["events/ts"]
         g.attrs.update({"num_events": self._n_events, "num_pos": self._n_pos,
                         "num_neg": self._n_events - self._n_pos,
@@ -507,7 +584,9 @@ class ShardReader:
         None for a shard whose config this version cannot read."""
         try:
             frames = (yaml.safe_load(self.config_yaml) or {}).get("simulation", {}).get("frames")
-            return from_mapping(FrameConfig, frames or {})
+            if frames is None:  # e.g. from-video: a sequence's frames are its video's
+                return None
+            return from_mapping(FrameConfig, frames)
         except (yaml.YAMLError, AttributeError, ValueError, TypeError):
             return None
 
@@ -773,9 +852,26 @@ class ShardReader:
     def frame_event_idx(self, name: str) -> np.ndarray:
         return self._group(name)["frames/event_idx"][:]
 
+    def video_source(self, name: str) -> dict[str, object] | None:
+        """A from-video sequence's provenance (:data:`VIDEO_ATTRS` to values); None for a
+        simulated scene."""
+        a = self._group(name).attrs
+        if VIDEO_ATTRS[0] not in a:
+            return None
+        return {k: a[k].item() if hasattr(a[k], "item") else a[k] for k in VIDEO_ATTRS}
+
     def trajectory(self, name: str) -> BSplineTrajectory:
-        """The camera trajectory the sequence was simulated with (exact poses at any time)."""
-        tr = self._group(name)["trajectory"]
+        """The camera trajectory the sequence was simulated with (exact poses at any time).
+
+        Raises:
+            ValueError: the sequence has none (made from a video).
+        """
+        g = self._group(name)
+        if "trajectory" not in g:
+            raise ValueError(f"{self.path}/{name}: no camera trajectory (made from a video "
+                             f"by datagen from-video), so no exact flow: train with "
+                             f"data.flow dis, farneback or none")
+        tr = g["trajectory"]
         return BSplineTrajectory(tr["positions"][:], tr["rotations"][:],
                                  float(tr.attrs["knot_spacing_s"]),
                                  float(tr.attrs["duration_s"]))

@@ -16,7 +16,7 @@ from esim_lite.events.flicker import Flicker
 from esim_lite.events.latency import readout_rng
 from esim_lite.events.noise import NoiseModel
 from esim_lite.events.sampling import AdaptiveSampler
-from esim_lite.events.simulator import EventSimulator, log_intensity
+from esim_lite.events.simulator import EventConfig, EventSimulator, log_intensity
 from esim_lite.events.thresholds import ContrastThresholds
 from esim_lite.geometry.camera import CameraRig
 from esim_lite.geometry.objects import DynamicScene, as_dynamic
@@ -200,28 +200,55 @@ def simulate(scene: PlanarScene | DynamicScene, trajectory: BSplineTrajectory,
             renderer.close()
 
 
+@dataclass(frozen=True, eq=False)
+class EventCamera:
+    """One sequence's event sensor and its light: ``sim`` turns log images into events,
+    ``flicker`` (None: none) modulates the light it sees (:meth:`light`)."""
+
+    sim: EventSimulator
+    flicker: Flicker | None
+
+    def light(self, image: np.ndarray, t_ns: int) -> np.ndarray:
+        """What the event camera sees of the linear ``image`` at ``t_ns``."""
+        return image if self.flicker is None else self.flicker.apply(image, t_ns)
+
+
+def event_camera(events: EventConfig, thresholds: ContrastThresholds,
+                 rng: np.random.Generator, first_image: np.ndarray, t0_ns: int = 0
+                 ) -> EventCamera:
+    """The event camera of one sequence, set at ``first_image`` (float32[H, W] linear).
+
+    ``rng`` (the sequence's noise stream) builds, in this order, the noise model, the lamp,
+    the readout jitter's stream and the pixels' random start, so every user of this
+    function draws the same sensor from the same stream. The pixels start from
+    ``first_image`` under the lamp at ``t0_ns``.
+    """
+    hw = tuple(first_image.shape)
+    noise = NoiseModel(events.noise, hw, rng) if events.noise.enabled else None
+    flicker = Flicker(events.flicker, hw, rng) if events.flicker.enabled else None
+    image = first_image if flicker is None else flicker.apply(first_image, t0_ns)
+    latency_rng = readout_rng(rng) if events.latency.enabled else None
+    start = derived_rng(rng, START_STREAM_KEY, "random_start").random(hw) \
+        if events.random_start else None
+    sim = EventSimulator(image, t0_ns, thresholds, log_eps=events.log_eps,
+                         refractory_ns=events.refractory_ns, noise=noise,
+                         bandwidth=events.bandwidth, latency=events.latency,
+                         latency_rng=latency_rng, start_phase=start)
+    return EventCamera(sim, flicker)
+
+
 def _run(renderer: Renderer, stage: _Stage, thresholds: ContrastThresholds,
          config: SimulationConfig, rig: CameraRig, rng: np.random.Generator,
          chunk_events: int) -> Iterator[SimulationChunk]:
     ev_cfg = config.events
-    noise = NoiseModel(ev_cfg.noise, rig.event.hw, rng) if ev_cfg.noise.enabled else None
-    flicker = Flicker(ev_cfg.flicker, rig.event.hw, rng) if ev_cfg.flicker.enabled else None
     t_end = int(round(config.duration_s * 1e9))
-
-    def light(image: np.ndarray, t_ns: int) -> np.ndarray:  # what the event camera sees
-        return image if flicker is None else flicker.apply(image, t_ns)
-
     t = 0
     state = stage.at(0)
     pose, twist = state[0], state[1]
-    image = light(renderer.render("lr", pose, state[2]), 0)
-    latency_rng = readout_rng(rng) if ev_cfg.latency.enabled else None
-    start = derived_rng(rng, START_STREAM_KEY, "random_start").random(rig.event.hw) \
-        if ev_cfg.random_start else None
-    sim = EventSimulator(image, t, thresholds, log_eps=ev_cfg.log_eps,
-                         refractory_ns=ev_cfg.refractory_ns, noise=noise,
-                         bandwidth=ev_cfg.bandwidth, latency=ev_cfg.latency,
-                         latency_rng=latency_rng, start_phase=start)
+    first = renderer.render("lr", pose, state[2])
+    camera = event_camera(ev_cfg, thresholds, rng, first, t)
+    sim, flicker, light = camera.sim, camera.flicker, camera.light
+    image = light(first, 0)
     sampler = AdaptiveSampler(config.sampling, rig.event, min(thresholds.pos, thresholds.neg),
                               np.minimum(thresholds.pos_map, thresholds.neg_map))
     schedule = FrameSchedule(config.frames, config.duration_s)

@@ -34,7 +34,8 @@ SIMULATOR = ("esim_lite.render", "esim_lite.events", "esim_lite.sequence", "esim
 trajectories and the scenes they move through."""
 
 GENERATOR = ("datagen.generate", "datagen.sampling", "datagen.sensor_ranges",
-             "datagen.textures", "datagen.config", "datagen.lock", "datagen.cli")
+             "datagen.textures", "datagen.config", "datagen.lock", "datagen.cli",
+             "datagen.video")
 """datagen's generator: the recipe, the per-sequence draws and the run that writes shards."""
 
 def _module_files() -> dict[str, Path]:

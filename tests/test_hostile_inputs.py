@@ -450,3 +450,38 @@ def test_train_out_on_a_read_only_disk(tiny_shards, tmp_path, monkeypatch, capsy
                                                                  "train_tiny.yaml"),
                      "--out", str(ro / "run"), "--no-progress"])
     refused(rc, capsys.readouterr().err, "ro")
+
+
+def test_from_video_refuses_a_frame_claiming_400_megapixels_by_its_header(tmp_path, capsys):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    png_bomb(folder / "00000.png")
+    (folder / "timestamps.txt").write_text("0\n")
+    out = tmp_path / "out"
+    refused(datagen_main(["from-video", str(folder), "--out", str(out), "--workers", "1",
+                          "--no-progress"]),
+            capsys.readouterr().err, "00000.png", "larger than e2sr decodes")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("content", ["hdf5", "text"])
+def test_from_video_never_removes_a_file_it_cannot_prove_it_wrote(tmp_path, capsys, content):
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(4):
+        cv2.imwrite(str(folder / f"{k}.png"), rng.integers(0, 255, (64, 64), np.uint8))
+    out = tmp_path / "d"
+    out.mkdir()
+    mine = out / "shard_00000.h5"
+    if content == "hdf5":
+        with h5py.File(mine, "w") as f:
+            f.create_dataset("precious", data=np.arange(5))
+    else:
+        mine.write_text("precious")
+    before = mine.read_bytes()
+    rc = datagen_main(["from-video", str(folder), "--fps", "30", "--sensor-size", "32x32",
+                       "--set", "video.frames_per_sequence=4", "--out", str(out),
+                       "--workers", "1", "--no-progress"])
+    refused(rc, capsys.readouterr().err, "shard_00000.h5", "not a shard datagen wrote")
+    assert mine.read_bytes() == before

@@ -134,6 +134,7 @@ class EventSimulator:
         self.t0_ns = int(t0_ns)
         self.t_ns = int(t0_ns)
         first_log = log_intensity(first_intensity, self.log_eps)
+        self._bandwidth = bandwidth
         self.lowpass = PhotoreceptorLowPass(bandwidth, first_log, self.log_eps) \
             if bandwidth is not None and bandwidth.enabled else None
         self.log_prev = self._effective_log(first_log, self.t_ns)
@@ -205,6 +206,24 @@ class EventSimulator:
         else:
             events = Events.trusted(x, y, t, p, self.hw)  # the compiled kernel's own arrays
         return events if self.readout is None else self.readout.step(events, t_ns)
+
+    def restart(self, intensity: np.ndarray, t_ns: int) -> None:
+        """Jump to a new scene at ``t_ns`` without the events of the jump (a video's scene
+        cut: a real sensor would burst there): each pixel's reference moves with its log
+        intensity, so the pixel keeps where it stood between its levels; the low-pass
+        settles at the new image; the interval since the last sample has no events, noise
+        included. ``intensity``: float32[H, W] linear, as :meth:`step` takes it."""
+        t_ns = int(t_ns)
+        if t_ns <= self.t_ns:
+            raise ValueError(f"samples must move forward in time: {t_ns} <= {self.t_ns}")
+        if intensity.shape != self.hw:
+            raise ValueError(f"sample shape {intensity.shape} does not match sensor {self.hw}")
+        log_img = log_intensity(intensity, self.log_eps)
+        if self.lowpass is not None:
+            self.lowpass = PhotoreceptorLowPass(self._bandwidth, log_img, self.log_eps)
+        new = self._effective_log(log_img, t_ns)
+        self.ref += new.astype(np.float64) - self.log_prev.astype(np.float64)
+        self.log_prev, self.t_ns = new, t_ns
 
     def finish(self) -> Events:
         """End the recording at the last sample: the events still waiting for their

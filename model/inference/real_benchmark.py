@@ -125,8 +125,8 @@ def recording_name(path: Path) -> str:
 
 def run_benchmark(ckpt: str | Path, folder: str | Path, out: str | Path,
                   options: EvalOptions | None = None, engine: str = "auto",
-                  command: str = "", calibrate: CalibrationSource | None = None
-                  ) -> BenchmarkResult:
+                  command: str = "", calibrate: CalibrationSource | None = None,
+                  model_only: bool = False) -> BenchmarkResult:
     """Run and score every recording of ``folder`` (:func:`find_recordings`) with the model
     ``ckpt``; ``options.normalize`` is ignored (each recording's verdict picks the
     normalisations, :func:`score_all`; default options average over the APS exposures).
@@ -152,7 +152,7 @@ def run_benchmark(ckpt: str | Path, folder: str | Path, out: str | Path,
                                        None if stats is None else stats.describe(),
                                        tuple(seq.averaged), motion))
     motions = {r.name: r.motion for r in reports if r.motion is not None}
-    rows = score_all(sequences, motions, pool.config.model.scale, options)
+    rows = score_all(sequences, motions, pool.config.model.scale, options, model_only)
     seconds = time.perf_counter() - start
     table, table_csv = out / "real_benchmark.md", out / "real_benchmark.csv"
     used = f"{engine} ({', '.join(sorted(engines))})" if engine == "auto" else engine
@@ -163,12 +163,13 @@ def run_benchmark(ckpt: str | Path, folder: str | Path, out: str | Path,
 
 
 def score_all(sequences: list[SequenceOutputs], motions: dict[str, SceneMotion], scale: int,
-              options: EvalOptions) -> list[dict]:
+              options: EvalOptions, model_only: bool = False) -> list[dict]:
     """Rows of :func:`score` for the scored sequences, each tagged with its ``normalize``
     and ``verdict`` (``motions``: by sequence name): a moving scene's under the whole-frame
     :data:`WHOLE_FRAME` normalisations with LPIPS, a static camera's under those without
     LPIPS and under ``observed``; per verdict and normalisation, the average over its
-    recordings when it has several."""
+    recordings when it has several. ``model_only``: without the floors and ceilings (they
+    do not depend on the model)."""
     lpips_net = LPIPS()
     rows = []
     for verdict in (MOVING, STATIC):
@@ -176,7 +177,8 @@ def score_all(sequences: list[SequenceOutputs], motions: dict[str, SceneMotion],
         if group:
             moving = verdict == MOVING
             part = _score_group(group, scale, options, lpips_net if moving else None,
-                                lpips_net, WHOLE_FRAME if moving else NORMALIZATIONS)
+                                lpips_net, WHOLE_FRAME if moving else NORMALIZATIONS,
+                                model_only)
             rows += [{"verdict": verdict, **({"swept": motions[r["sequence"]].swept_share}
                                              if r["sequence"] in motions else {}), **r}
                      for r in part]
@@ -184,16 +186,18 @@ def score_all(sequences: list[SequenceOutputs], motions: dict[str, SceneMotion],
 
 
 def _score_group(sequences: list[SequenceOutputs], scale: int, options: EvalOptions,
-                 whole_lpips: LPIPS | None, region_lpips: LPIPS, norms: tuple[str, ...]
-                 ) -> list[dict]:
+                 whole_lpips: LPIPS | None, region_lpips: LPIPS, norms: tuple[str, ...],
+                 model_only: bool = False) -> list[dict]:
     """Rows of :func:`score` (plus per-method averages over ``sequences``) under each of
-    ``norms``; LPIPS over whole frames only with ``whole_lpips``."""
+    ``norms``; LPIPS over whole frames only with ``whole_lpips``; without the floors and
+    ceilings with ``model_only``."""
     rows, ceilings = [], None
     order = {s.name: i for i, s in enumerate(sequences)}
     for norm in norms:
         # the ceilings are compared as they are: one set of rows serves every whole-frame
         # normalisation (the harmonic one is a Laplace solve per frame)
-        opts = replace(options, normalize=norm, references=True, ceilings=ceilings is None)
+        opts = replace(options, normalize=norm, references=not model_only,
+                       ceilings=ceilings is None and not model_only)
         net = region_lpips if norm == "observed" else whole_lpips
         part = [r for s in sequences for r in score(s, scale, opts, net)]
         if norm != "observed":

@@ -147,3 +147,13 @@ def test_the_benchmark_skips_cleanly_without_the_folder(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     with pytest.raises(FileNotFoundError, match="no \\*.aedat4 file and no events.txt"):
         find_recordings(tmp_path / "empty")
+
+
+def test_model_only_scores_the_model_alone(real_folder, tiny_checkpoint, tmp_path):
+    out = tmp_path / "bench"
+    assert bench_real().main(["--folder", str(real_folder), "--out", str(out), "--model-only",
+                              "--checkpoint", str(tiny_checkpoint), "--engine", "torch"]) == 0
+    rows = list(csv.DictReader((out / "real_benchmark.csv").open()))
+    assert {(r["normalize"], r["method"]) for r in rows} == {
+        ("evreal", "ours"), ("affine", "ours"), ("observed", "ours")}
+    assert cv2.imread(str(out / "real_benchmark.png")) is not None
