@@ -2,7 +2,7 @@
 video.
 
 Run: PYTHONPATH=. .venv/bin/python bench/bench_from_video.py [--oracle] [--long SECONDS ...]
-         [--workdir DIR]
+         [--esim-py DIR] [--workdir DIR]
 
 ``--oracle``: the oracle of tests/datagen/video_oracle.py (a 96x64 camera sliding over a
 textured plane, rendered at its own adaptive rate, written as a 30 fps 16-bit PNG video,
@@ -16,9 +16,13 @@ x2 dataset (32 frames a sequence), each run in a child process (one worker): CPU
 + sys) and peak resident memory (ru_maxrss); the machine is shared, so CPU time, not wall
 time, is the measure. Streaming shows as a peak memory that does not grow with S.
 
-esim_py itself is not run: building it (bench/esim_py/build.sh) needs an rpg_vid2e checkout
-and OpenCV, Eigen and Boost headers, none of which this machine has; ``linear`` is its rule
-(and bench/bench_events.py times its kernel against ours where it is built).
+``--esim-py DIR`` (with ``--long``; DIR holds the ``esim_py_memory`` module that
+bench/esim_py/build.sh builds from an rpg_vid2e checkout): two more rows per video, the
+same comparison as bench/bench_events.py. esim_py is fed the same LR frames ``from-video``
+makes (the same decoding and :func:`datagen.video.optics.camera_images`, as 8-bit linear
+intensity, esim_py's input), 32 frames a sequence at the video's own times, Cp = Cn = 0.2,
+no interpolation between frames; beside it ``from-video`` with ``linear`` at the same
+fixed thresholds, in a child process each.
 """
 
 from __future__ import annotations
@@ -120,11 +124,75 @@ def long_video(work: Path, seconds: list[float]) -> None:
                   f"{stats['maxrss_mb']:.0f} |")
 
 
+ESIM_CHILD = """
+import json, resource, sys, time
+import cv2, numpy as np
+video, esim_dir, per_seq = sys.argv[1], sys.argv[2], int(sys.argv[3])
+start = time.process_time()
+sys.path.insert(0, esim_dir)
+import esim_py_memory as esim
+from datagen.video.optics import camera_images
+cap = cv2.VideoCapture(video)
+frames, times, seqs, events = [], [], 0, 0
+while True:
+    ok, frame = cap.read()
+    if not ok:
+        break
+    times.append(cap.get(cv2.CAP_PROP_POS_MSEC) * 1e-3)
+    rgb = cv2.cvtColor(frame, cv2.COLOR_BGR2RGB)
+    lr = camera_images(rgb, (128, 128), (2,), 1, "srgb").images["lr"]
+    frames.append(np.clip(np.round(lr * 255), 0, 255).astype(np.uint8))
+    if len(frames) == per_seq:
+        sim = esim.EventSimulator(0.2, 0.2, 0.0, 1e-3, True)
+        events += len(esim.generate_from_frames(sim, np.stack(frames),
+                                                [t - times[0] for t in times]))
+        seqs, frames, times = seqs + 1, [], []
+usage = resource.getrusage(resource.RUSAGE_SELF)
+print(json.dumps({"sequences": seqs, "events": events, "cpu_s": time.process_time() - start,
+                  "maxrss_mb": usage.ru_maxrss / 1024}))
+"""
+
+
+def esim_rows(work: Path, seconds: list[float], esim_dir: Path) -> None:
+    """``from-video`` ``linear`` against esim_py fed the same LR frames (fixed C = 0.2)."""
+    print("| video | pipeline | sequences | events | CPU s | sequences / CPU min "
+          "| peak RSS MB |")
+    print("|---|---|---:|---:|---:|---:|---:|")
+    for s in seconds:
+        video = work / f"pan_{s:g}s.avi"
+        if not video.exists():
+            make_video(video, s)
+        out = work / f"esim_cmp_{s:g}"
+        args = ["from-video", str(video), "--out", str(out), "--sensor-size", "128x128",
+                "--scale", "2", "--interpolator", "linear", "--workers", "1", "--no-progress",
+                "--set", "simulation.events.thresholds.pos_range=[0.2,0.2]",
+                "--set", "simulation.events.thresholds.neg_range=[0.2,0.2]"]
+        res = subprocess.run([sys.executable, "-c", CHILD, *args], capture_output=True,
+                             text=True, cwd=ROOT, check=True)
+        lines = res.stdout.strip().splitlines()
+        ours = json.loads(lines[-1])
+        found = re.search(r"(\d+) sequences, ([\d,]+) events", lines[0])
+        theirs = json.loads(subprocess.run(
+            [sys.executable, "-c", ESIM_CHILD, str(video), str(esim_dir), "32"],
+            capture_output=True, text=True, cwd=ROOT, check=True).stdout.strip()
+            .splitlines()[-1])
+        for name, seqs, events, st in (
+                ("from-video linear (shards: LR + HR frames, events)", int(found.group(1)),
+                 found.group(2), ours),
+                ("esim_py (C++), fed the same LR frames (events in memory)",
+                 theirs["sequences"], f"{theirs['events']:,}", theirs)):
+            print(f"| 1920x1080 {s:g} s MJPG | {name} | {seqs} | {events} | "
+                  f"{st['cpu_s']:.1f} | {seqs / st['cpu_s'] * 60:.1f} | "
+                  f"{st['maxrss_mb']:.0f} |", flush=True)
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--oracle", action="store_true")
     p.add_argument("--speeds", type=float, nargs="+", default=[0.5, 1, 2, 4, 8, 12])
     p.add_argument("--long", type=float, nargs="*", default=[])
+    p.add_argument("--esim-py", type=Path, metavar="DIR",
+                   help="with --long: also time esim_py (built by bench/esim_py/build.sh)")
     p.add_argument("--workdir")
     args = p.parse_args()
     work = Path(args.workdir or tempfile.mkdtemp(prefix="bench_from_video_"))
@@ -135,6 +203,8 @@ def main() -> None:
             oracle(work, args.speeds)
         if args.long:
             long_video(work, args.long)
+            if args.esim_py:
+                esim_rows(work, args.long, args.esim_py.resolve())
     finally:
         if not args.workdir:
             shutil.rmtree(work, ignore_errors=True)
