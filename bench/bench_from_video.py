@@ -100,14 +100,18 @@ print(json.dumps({"rc": rc, "cpu_s": time.process_time() - start,
 """
 
 
+def video_of(work: Path, seconds: float) -> Path:
+    """The benchmark's synthetic video of ``seconds`` in ``work``, made once."""
+    video = work / f"pan_{seconds:g}s.avi"
+    return video if video.exists() else make_video(video, seconds)
+
+
 def long_video(work: Path, seconds: list[float]) -> None:
     print("| video | frames | interpolator | sequences | events | CPU s | sequences / CPU min "
           "| peak RSS MB |")
     print("|---|---:|---|---:|---:|---:|---:|---:|")
     for s in seconds:
-        video = work / f"pan_{s:g}s.avi"
-        if not video.exists():
-            make_video(video, s)
+        video = video_of(work, s)
         frames = int(round(s * 30))
         for name in ("linear", "flow"):
             out = work / f"long_{s:g}_{name}"
@@ -159,9 +163,7 @@ def esim_rows(work: Path, seconds: list[float], esim_dir: Path) -> None:
           "| peak RSS MB |")
     print("|---|---|---:|---:|---:|---:|---:|")
     for s in seconds:
-        video = work / f"pan_{s:g}s.avi"
-        if not video.exists():
-            make_video(video, s)
+        video = video_of(work, s)
         out = work / f"esim_cmp_{s:g}"
         args = ["from-video", str(video), "--out", str(out), "--sensor-size", "128x128",
                 "--scale", "2", "--interpolator", "linear", "--workers", "1", "--no-progress",

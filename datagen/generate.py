@@ -28,7 +28,7 @@ import numpy as np
 from tqdm import tqdm
 
 from datagen.config import DatagenConfig
-from datagen.lock import FolderLock, stale_temporary
+from datagen.lock import FolderLock, clear_leftovers
 from datagen.sampling import sample_sequence
 from datagen.sensor_ranges import SensorRanges
 from datagen.shard import ShardReader, ShardWriter
@@ -258,12 +258,7 @@ def _generate_locked(out: Path, plans: list[ShardPlan], config: DatagenConfig,
         raise ValueError(f"{foreign[0]}: a complete shard made with a different config or "
                          f"seed is in the way; write this dataset to another --out folder")
     todo = [p for p in plans if states[p.index] == "todo"]
-    for p in plans:  # leftovers of interrupted runs (never a live process's file)
-        for stale in p.path.parent.glob(p.path.name + ".tmp-*"):
-            if stale_temporary(stale):
-                stale.unlink(missing_ok=True)
-        if states[p.index] == "todo":
-            p.path.unlink(missing_ok=True)
+    clear_leftovers([p.path for p in plans], {p.path for p in todo})
     start = time.perf_counter()
     bar = tqdm(total=sum(p.count for p in todo), unit="seq", disable=not show_progress,
                desc="datagen")

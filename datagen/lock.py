@@ -57,6 +57,18 @@ def stale_temporary(path: Path) -> bool:
     return pid != os.getpid() and not alive(pid)
 
 
+def clear_leftovers(shards: list[Path], unfinished: set[Path]) -> None:
+    """Before writing ``shards``: remove the temporary files of interrupted runs beside each
+    (never a live process's: :func:`stale_temporary`) and the shards in ``unfinished``
+    (incomplete ones, which are written again)."""
+    for path in shards:
+        for stale in path.parent.glob(path.name + ".tmp-*"):
+            if stale_temporary(stale):
+                stale.unlink(missing_ok=True)
+        if path in unfinished:
+            path.unlink(missing_ok=True)
+
+
 def _owners(state: Path) -> list[dict]:
     out = []
     for f in sorted(state.glob(".datagen.owner-*.json")):

@@ -44,7 +44,7 @@ import yaml
 from tqdm import tqdm
 
 from datagen.generate import DiskFullError, GenerateSummary, ShardResult
-from datagen.lock import FolderLock, stale_temporary
+from datagen.lock import FolderLock, clear_leftovers
 from datagen.sampling import sequence_streams
 from datagen.shard import ShardReader, ShardWriter, VideoProvenance
 from datagen.video.config import FromVideoConfig
@@ -350,12 +350,7 @@ def _todo(plans: list[VideoShardPlan], config_yaml: str, seed: int
         if bad:
             raise ValueError(f"{bad[0]}: in the way of a shard of this dataset: it {why}")
     todo = [p for p in plans if states[p.index] == "todo"]
-    for p in plans:  # leftovers of interrupted runs (never a live process's file)
-        for stale in p.path.parent.glob(p.path.name + ".tmp-*"):
-            if stale_temporary(stale):
-                stale.unlink(missing_ok=True)
-        if states[p.index] == "todo":
-            p.path.unlink(missing_ok=True)
+    clear_leftovers([p.path for p in plans], {p.path for p in todo})
     return todo, len(plans) - len(todo)
 
 
