@@ -10,6 +10,9 @@ Layout (one folder per shard, written under a temporary name and renamed when co
 so an interrupted build leaves nothing that looks finished and resumes shard by shard)::
 
     <shard folder>/cache/<settings hash>/<shard stem>-<shard content hash>/
+    (or ...-<shard content hash>-<samples hash>/: a second dataset over the same shard
+    whose samples the first folder lacks gets its own, never a replacement of the first,
+    which a run may be reading)
         stacks.npy  uint8[U, c, H, W]       distinct stacks (neighbouring samples share them)
         flows.npy   float16[F, 2, H, W]     DIS flow from a sample's central stack to a side
         lr.npy, hr.npy [R, 1, H, W], [R, 1, sH, sW]   the sample's frames (the shard's dtype)
@@ -143,11 +146,24 @@ def covers(folder: Path, refs: list) -> bool:
     return all(_ref_key(r) in keys for r in refs)
 
 
+def _variant(folder: Path, refs: list) -> Path:
+    """The cache folder of exactly ``refs``'s samples beside ``folder`` (named by them)."""
+    keys = "\n".join(sorted(_ref_key(r) for r in refs))
+    return folder.with_name(f"{folder.name}-{hashlib.sha256(keys.encode()).hexdigest()[:12]}")
+
+
 def build_shard(folder: Path, path: Path, refs: list, spec: CacheSpec) -> Path:
-    """Write one shard's cache folder atomically (skipped when it already holds every
-    sample of ``refs``; otherwise replaced by one that holds ``refs``)."""
+    """The cache folder holding every sample of ``refs``, written atomically when there is
+    none: ``folder`` itself when it holds them or is free; when ``folder`` holds another
+    dataset's samples (a run over another folder of links to the same shard may be reading
+    it), a folder of its own beside it (:func:`_variant`), never a replacement. Returns the
+    folder used."""
     if covers(folder, refs):
         return folder
+    if (folder / "keys.json").is_file():
+        folder = _variant(folder, refs)
+        if covers(folder, refs):
+            return folder
     tmp = folder.with_name(f"{folder.name}.tmp-{os.getpid()}")
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
@@ -157,21 +173,23 @@ def build_shard(folder: Path, path: Path, refs: list, spec: CacheSpec) -> Path:
             np.save(tmp / f"{name}.npy", arrays[name])
         (tmp / "keys.json").write_text(json.dumps(arrays["keys"]))
         old = folder.with_name(f"{folder.name}.old-{os.getpid()}")
-        if folder.is_dir():  # an incomplete set of samples: replace it
+        if folder.is_dir() and not (folder / "keys.json").is_file():  # never completed
             os.rename(folder, old)
         try:
             os.rename(tmp, folder)
-        except OSError:  # another process finished the same shard first
+        except OSError:  # another process finished this folder first
             if not covers(folder, refs):
-                raise
+                folder = _variant(folder, refs)
+                if not covers(folder, refs):
+                    os.rename(tmp, folder)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
         shutil.rmtree(folder.with_name(f"{folder.name}.old-{os.getpid()}"), ignore_errors=True)
     return folder
 
 
-def _build_job(job: tuple[Path, Path, list, CacheSpec]) -> Path:
-    return build_shard(*job)
+def _build_job(job: tuple[Path, Path, list, CacheSpec]) -> tuple[str, Path]:
+    return str(job[1]), build_shard(*job)
 
 
 class InputCache:
@@ -194,6 +212,10 @@ class InputCache:
         for r in refs:
             by_shard[r.path].append(r)
         folders = {p: cache_folder(spec, Path(p)) for p, rs in by_shard.items() if rs}
+        for p in folders:  # another dataset's cache of the shard may hold ours already
+            if not covers(folders[p], by_shard[p]) and \
+                    covers(_variant(folders[p], by_shard[p]), by_shard[p]):
+                folders[p] = _variant(folders[p], by_shard[p])
         jobs = [(folders[p], Path(p), by_shard[p], spec) for p in folders
                 if not covers(folders[p], by_shard[p])]
         if jobs:
@@ -205,11 +227,9 @@ class InputCache:
                 raise ValueError(f"{root}: cannot create the input cache ({exc})") from exc
             if workers > 1 and len(jobs) > 1:
                 with get_context("spawn").Pool(min(workers, len(jobs))) as pool:
-                    for _ in pool.imap_unordered(_build_job, jobs):
-                        pass
+                    folders.update(pool.imap_unordered(_build_job, jobs))
             else:
-                for job in jobs:
-                    _build_job(job)
+                folders.update(_build_job(job) for job in jobs)
         return cls(folders)
 
     def _map(self, path: str) -> dict:

@@ -80,10 +80,12 @@ def test_only_what_the_cache_can_hold_is_accepted():
         CacheSpec(StackConfig(), "exact", 3, 2)
 
 
-def test_a_cache_missing_samples_another_dataset_needs_is_rebuilt(tiny_shards, tmp_path):
+def test_a_cache_missing_samples_another_dataset_needs_gets_its_own(tiny_shards, tmp_path):
     """Validation keeps a spread of frames whose choice depends on the whole dataset, so a
     shard cached for one folder of links can lack samples a second folder over the same
-    shard asks for: that shard's cache is rebuilt to hold them, not read and failed on."""
+    shard asks for: the second gets a cache folder of its own, and the first, which a run
+    may still be reading, stays as it was (two runs started together once lost a sample
+    when the second replaced the first's folder)."""
     own = tmp_path / "shard_00000.h5"      # a private copy: no other test's cache beside it
     shutil.copy(find_shards(tiny_shards)[0], own)
     cfg, dcfg, shards, refs, spec = _setup(tmp_path, crop=None, flips=False)
@@ -93,10 +95,20 @@ def test_a_cache_missing_samples_another_dataset_needs_is_rebuilt(tiny_shards, t
     with pytest.raises(ValueError, match="no cached sample"):
         ShardSamples(mine[1:2], dcfg, cfg.model.n_stacks, cfg.model.scale, False,
                      cache=first)[0]
+    folder = cache_folder(spec, shards[0])
+    before = {p.name: p.stat().st_mtime_ns for p in folder.iterdir()}
     second = InputCache.build(shards, mine, spec)                  # all of the shard's samples
     plain = ShardSamples(mine, dcfg, cfg.model.n_stacks, cfg.model.scale, False)
     cached = ShardSamples(mine, dcfg, cfg.model.n_stacks, cfg.model.scale, False, cache=second)
     for i in range(len(mine)):
         assert torch.equal(plain[i]["hr"], cached[i]["hr"])
-    folder = cache_folder(spec, shards[0])
-    assert not list(folder.parent.glob(f"{folder.name}.old-*"))   # the old one is gone
+    # the first run's folder is untouched and still serves it, from a fresh process's view
+    assert {p.name: p.stat().st_mtime_ns for p in folder.iterdir()} == before
+    again = InputCache(dict(first.folders))
+    assert torch.equal(ShardSamples(mine[:1], dcfg, cfg.model.n_stacks, cfg.model.scale, False,
+                                    cache=again)[0]["hr"], plain[0]["hr"])
+    assert second.folders[str(shards[0])] != folder
+    # a third build of either set finds its folder and builds nothing
+    assert InputCache.build(shards, mine, spec).folders == second.folders
+    assert InputCache.build(shards, mine[:1], spec).folders == first.folders
+    assert not list(folder.parent.glob("*.tmp-*")) and not list(folder.parent.glob("*.old-*"))
