@@ -85,8 +85,9 @@ def test_calibrate_never_writes_over_a_recording_or_a_file_it_did_not_write(tmp_
     assert datagen_main(["calibrate", str(rec), "--out", str(preset)]) == 0  # its own: redone
 
 
-@pytest.mark.parametrize("content", ["hdf5", "text"])
-def test_generate_never_removes_a_file_it_cannot_prove_it_wrote(tmp_path, capsys, content):
+def users_shard(tmp_path, content: str):
+    """An output folder holding a user's file at the first shard's name (HDF5 or text):
+    (the folder, the file)."""
     out = tmp_path / "d"
     out.mkdir()
     mine = out / "shard_00000.h5"
@@ -95,6 +96,12 @@ def test_generate_never_removes_a_file_it_cannot_prove_it_wrote(tmp_path, capsys
             f.create_dataset("precious", data=np.arange(5))
     else:
         mine.write_text("precious")
+    return out, mine
+
+
+@pytest.mark.parametrize("content", ["hdf5", "text"])
+def test_generate_never_removes_a_file_it_cannot_prove_it_wrote(tmp_path, capsys, content):
+    out, mine = users_shard(tmp_path, content)
     before = mine.read_bytes()
     rc = datagen_main(["generate", "--config", str(TINY), "--n-seq", "1", "--out", str(out),
                        "--workers", "1", "--no-progress"])
@@ -471,14 +478,7 @@ def test_from_video_never_removes_a_file_it_cannot_prove_it_wrote(tmp_path, caps
     rng = np.random.default_rng(0)
     for k in range(4):
         cv2.imwrite(str(folder / f"{k}.png"), rng.integers(0, 255, (64, 64), np.uint8))
-    out = tmp_path / "d"
-    out.mkdir()
-    mine = out / "shard_00000.h5"
-    if content == "hdf5":
-        with h5py.File(mine, "w") as f:
-            f.create_dataset("precious", data=np.arange(5))
-    else:
-        mine.write_text("precious")
+    out, mine = users_shard(tmp_path, content)
     before = mine.read_bytes()
     rc = datagen_main(["from-video", str(folder), "--fps", "30", "--sensor-size", "32x32",
                        "--set", "video.frames_per_sequence=4", "--out", str(out),
