@@ -104,14 +104,27 @@ class PhotoreceptorLowPass:
         ``budget`` may be per pixel (float[H, W]); with ``fall_budget``, ``budget`` holds
         the pixels that rise towards their input and ``fall_budget`` those that fall (a
         relaxation is monotonic, so it can only cross the levels of its own direction)."""
-        diff = self.input - self.state
-        gap = np.abs(diff)
-        allowed = np.broadcast_to(budget if fall_budget is None else
-                                  np.where(diff > 0, budget, fall_budget), gap.shape)
-        far = gap > allowed
-        if not far.any():
-            return math.inf
-        return float(np.min(-self._tau[far] * np.log1p(-allowed[far] / gap[far])))
+        shape = self.state.shape
+        rise = np.broadcast_to(np.asarray(budget), shape)
+        fall = rise if fall_budget is None else np.broadcast_to(np.asarray(fall_budget), shape)
+        return _max_step(self.state, self.input, self._tau, rise, fall)
+
+
+@numba.njit(cache=True, nogil=True)
+def _max_step(state, inp, tau, rise, fall):
+    """:meth:`PhotoreceptorLowPass.max_step` in one compiled pass: the smallest
+    ``-tau log(1 - allowed / gap)`` over the pixels whose gap to their input exceeds their
+    allowance (inf where none does)."""
+    h, w = state.shape
+    best = math.inf
+    for y in range(h):
+        for x in range(w):
+            diff = inp[y, x] - state[y, x]
+            gap = abs(diff)
+            allowed = np.float64(rise[y, x] if diff > 0 else fall[y, x])
+            if gap > allowed:
+                best = min(best, -tau[y, x] * math.log1p(-allowed / gap))
+    return best
 
 
 @numba.njit(cache=True, nogil=True)

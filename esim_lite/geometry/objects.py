@@ -70,12 +70,18 @@ class PackedSurfaces:
             scale, col offset, row scale, row offset).
         shapes: int64[K, 3]: offset into the flat arrays, h, w.
         alphas, texels: float64, every object's alpha / texture raveled one after another.
+        hulls: float64[K, M, 3]: half-planes ``a X + b Y <= e`` (object-plane metres) whose
+            intersection holds every solid point of the object (:func:`support_halfplanes`);
+            object ``k`` uses the first ``hull_sizes[k]`` rows.
+        hull_sizes: int64[K]: half-planes per object; 0 for an object with no solid point.
     """
 
     geom: np.ndarray
     shapes: np.ndarray
     alphas: np.ndarray
     texels: np.ndarray
+    hulls: np.ndarray
+    hull_sizes: np.ndarray
 
 
 @dataclass(frozen=True, eq=False)
@@ -108,9 +114,16 @@ class DynamicScene:
             return np.concatenate([a.ravel() for a in arrays]).astype(np.float64) if k \
                 else np.zeros(0)
 
+        planes = [support_halfplanes(o.alpha, o.surface.texture_from_plane())
+                  for o in self.objects]
+        hulls = np.zeros((k, max([len(p) for p in planes], default=0), 3))
+        for j, p in enumerate(planes):
+            hulls[j, :len(p)] = p
         packed = PackedSurfaces(geom, shapes, flat([o.alpha for o in self.objects]),
-                                flat([o.surface.texture for o in self.objects]))
-        for a in (packed.geom, packed.shapes, packed.alphas, packed.texels):
+                                flat([o.surface.texture for o in self.objects]), hulls,
+                                np.array([len(p) for p in planes], np.int64))
+        for a in (packed.geom, packed.shapes, packed.alphas, packed.texels, packed.hulls,
+                  packed.hull_sizes):
             a.flags.writeable = False
         return packed
 
@@ -122,6 +135,57 @@ class DynamicScene:
         """Poses and world-frame twists of every object at ``t_s``."""
         both = [o.pose_and_twist(t_s) for o in self.objects]
         return tuple(p for p, _ in both), tuple(w for _, w in both)
+
+
+#: How far (texels) :func:`support_halfplanes` reaches past the centre of a texel with
+#: alpha > 0: a bilinear alpha above 0 needs such a texel within 1 in each axis; the other
+#: half texel is a margin that rounding in the renderers' spans cannot eat.
+SUPPORT_REACH = 1.5
+
+
+def support_halfplanes(alpha: np.ndarray, texture_from_plane: np.ndarray) -> np.ndarray:
+    """float64[M, 3]: half-planes ``a X + b Y <= e`` (``a, b`` unit, object-plane metres)
+    bounding the convex hull of every point within :data:`SUPPORT_REACH` texels of a texel
+    with alpha > 0, so every point whose bilinear alpha passes :data:`ALPHA_CUTOFF` lies
+    inside all of them (empty: no texel has alpha > 0). Renderers use them only to skip
+    rays that cannot meet the object; the alpha test still decides every hit."""
+    rows = np.flatnonzero((alpha > 0).any(axis=1))
+    if not len(rows):
+        return np.zeros((0, 3))
+    solid = alpha[rows] > 0
+    left = solid.argmax(axis=1)
+    right = alpha.shape[1] - 1 - solid[:, ::-1].argmax(axis=1)
+    r = SUPPORT_REACH
+    cols = np.concatenate([left - r, left - r, right + r, right + r]).astype(np.float64)
+    rws = np.concatenate([rows - r, rows + r, rows - r, rows + r]).astype(np.float64)
+    (sx, _, ox), (_, sy, oy) = texture_from_plane[0], texture_from_plane[1]
+    hull = _convex_hull(np.column_stack([(cols - ox) / sx, (rws - oy) / sy]))
+    edge = np.roll(hull, -1, axis=0) - hull
+    normal = np.column_stack([edge[:, 1], -edge[:, 0]])  # outward for a CCW hull
+    length = np.hypot(normal[:, 0], normal[:, 1])
+    keep = length > 0
+    normal = normal[keep] / length[keep, None]
+    return np.column_stack([normal, (normal * hull[keep]).sum(axis=1)])
+
+
+def _convex_hull(points: np.ndarray) -> np.ndarray:
+    """float64[N, 2]: the convex hull's vertices counter-clockwise (Andrew's monotone
+    chain; collinear points dropped)."""
+    pts = np.unique(points, axis=0)  # sorted by x, then y
+    if len(pts) < 3:
+        return pts
+
+    def chain(seq: np.ndarray) -> list[np.ndarray]:
+        out: list[np.ndarray] = []
+        for p in seq:
+            while len(out) >= 2 and ((out[-1][0] - out[-2][0]) * (p[1] - out[-2][1])
+                                     - (out[-1][1] - out[-2][1]) * (p[0] - out[-2][0])) <= 0:
+                out.pop()
+            out.append(p)
+        return out
+
+    lower, upper = chain(pts), chain(pts[::-1])
+    return np.array(lower[:-1] + upper[:-1])
 
 
 def as_dynamic(scene: PlanarScene | DynamicScene) -> DynamicScene:

@@ -208,7 +208,7 @@ def surface_truth(scene: DynamicScene, intrinsics: Intrinsics, camera: Pose,
         np.ascontiguousarray(camera.t_wc, np.float64),
         np.asarray(camera_twist.v_w, np.float64), np.asarray(camera_twist.w_w, np.float64),
         r_wo, t_wo, v_o, w_o, packed.geom, packed.shapes, packed.alphas, boxes, ALPHA_CUTOFF,
-        MISS)
+        MISS, packed.hulls, packed.hull_sizes)
     return SurfaceTruth(flow, depth, ids)
 
 
@@ -294,6 +294,68 @@ def object_frames(scene: DynamicScene, object_poses: tuple[Pose, ...]
 
 
 @numba.njit(cache=True, nogil=True)
+def row_boxes(y, fx, fy, cx, cy, r_wc, origin, r_wo, boxes, hulls, hull_sizes, out):
+    """Fills ``out`` (int64[K, 4]) with each object's box narrowed to row ``y``: the
+    samples ``x0 <= x < x1`` of that row whose rays can meet the object's solid part (its
+    :func:`~esim_lite.geometry.objects.support_halfplanes`, one sample of margin), empty
+    where none can. Conservative, so a renderer that tests only these samples draws what
+    it draws when testing the whole box. ``origin``: :func:`camera_in_objects`."""
+    ry = (y - cy) / fy
+    for j in range(boxes.shape[0]):
+        out[j, 0], out[j, 1], out[j, 2], out[j, 3] = 0, 0, y, y + 1
+        if not (boxes[j, 2] <= y < boxes[j, 3]) or boxes[j, 1] <= boxes[j, 0] \
+                or hull_sizes[j] == 0:
+            continue
+        oz = origin[j, 2]
+        if oz == 0:  # the camera in the object's plane sees it edge-on: no hit
+            continue
+        # the ray through (x, y) in the object's frame: p + x q (x in samples)
+        p = np.zeros(3)
+        q = np.zeros(3)
+        for k in range(3):
+            for a in range(3):
+                p[k] += r_wo[j, a, k] * (r_wc[a, 1] * ry + r_wc[a, 2] - r_wc[a, 0] * cx / fx)
+                q[k] += r_wo[j, a, k] * (r_wc[a, 0] / fx)
+        lo, hi = -np.inf, np.inf
+        # in front: oz dz <= 0. Inside the half-plane a X + b Y <= e, with X = ox - oz dx / dz
+        # (Y alike): N / dz <= 0 for N = a (ox dz - oz dx) + b (oy dz - oz dy) - e dz, and dz
+        # has the sign opposite to oz's in front, so -oz N <= 0. Each is c0 + c1 x <= 0.
+        n = hull_sizes[j]
+        for i in range(n + 1):
+            if i == n:
+                c0, c1 = oz * p[2], oz * q[2]
+            else:
+                a_, b_, e_ = hulls[j, i, 0], hulls[j, i, 1], hulls[j, i, 2]
+                c0 = -oz * (a_ * (origin[j, 0] * p[2] - oz * p[0])
+                            + b_ * (origin[j, 1] * p[2] - oz * p[1]) - e_ * p[2])
+                c1 = -oz * (a_ * (origin[j, 0] * q[2] - oz * q[0])
+                            + b_ * (origin[j, 1] * q[2] - oz * q[1]) - e_ * q[2])
+            # c0 + c1 x <= 0
+            if c1 > 0:
+                hi = min(hi, -c0 / c1)
+            elif c1 < 0:
+                lo = max(lo, -c0 / c1)
+            elif c0 > 0:
+                lo, hi = np.inf, -np.inf
+        if not (lo <= hi):  # empty (or NaN: keep the whole box)
+            if lo > hi:
+                continue
+            out[j, 0], out[j, 1] = boxes[j, 0], boxes[j, 1]
+            continue
+        x0, x1 = boxes[j, 0], boxes[j, 1]  # the samples lo - 1 <= x <= hi + 1 of the box
+        if lo - 1.0 > x0:
+            if lo - 1.0 >= x1:
+                continue
+            x0 = int(math.ceil(lo - 1.0))
+        if hi + 1.0 < x1 - 1:
+            if hi + 1.0 < x0:
+                continue
+            x1 = int(math.floor(hi + 1.0)) + 1
+        if x0 < x1:
+            out[j, 0], out[j, 1] = x0, x1
+
+
+@numba.njit(cache=True, nogil=True)
 def bilinear_at(flat, off, h, w, col, row):
     """Bilinear lookup of the [h, w] image stored at ``flat[off:off + h w]`` (row-major),
     texels clamped (as :func:`bilinear`); compiled."""
@@ -361,19 +423,21 @@ def nearest_hit(d0, d1, d2, c_z, x, y, origin, r_wo, geom, shapes, alphas, boxes
 
 @numba.njit(cache=True, nogil=True)
 def _truth_kernel(height, width, fx, fy, cx, cy, r_wc, c, v_c, w_c, r_wo, t_wo, v_o, w_o,
-                  geom, shapes, alphas, boxes, cutoff, miss):
+                  geom, shapes, alphas, boxes, cutoff, miss, hulls, hull_sizes):
     flow = np.zeros((2, height, width), np.float32)
     depth = np.empty((height, width), np.float32)
     ids = np.empty((height, width), np.uint8)
     origin = camera_in_objects(c, r_wo, t_wo)
     d = np.empty(3)
+    row = np.zeros_like(boxes)
     for y in range(height):
+        row_boxes(y, fx, fy, cx, cy, r_wc, origin, r_wo, boxes, hulls, hull_sizes, row)
         for x in range(width):
             rx, ry = (x - cx) / fx, (y - cy) / fy
             for a in range(3):
                 d[a] = r_wc[a, 0] * rx + r_wc[a, 1] * ry + r_wc[a, 2]
             best, hit, _, _ = nearest_hit(d[0], d[1], d[2], c[2], x, y, origin, r_wo, geom,
-                                          shapes, alphas, boxes, cutoff)
+                                          shapes, alphas, row, cutoff)
             if hit < 0:
                 ids[y, x] = miss
                 depth[y, x] = np.inf

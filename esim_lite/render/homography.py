@@ -30,6 +30,7 @@ from esim_lite.geometry.visibility import (
     camera_in_objects,
     nearest_hit,
     object_frames,
+    row_boxes,
     sample_boxes,
 )
 
@@ -51,7 +52,7 @@ class HomographyRenderer:
         self.scenes = {name: as_dynamic(scene) for name, scene in scenes.items()}
         self.cameras = dict(cameras)
         self.supersample, self._fine = sample_grids(self.cameras, supersample)
-        self._kept: dict[str, tuple[tuple[bytes, bytes], np.ndarray]] = {}
+        self._kept: dict[str, tuple[tuple[bytes, bytes], np.ndarray | None]] = {}
 
     def render(self, camera: str, pose: Pose, objects: Sequence[Pose] = ()) -> np.ndarray:
         """float32[H, W] linear intensity seen by ``camera`` at ``pose`` with the scene's
@@ -80,12 +81,16 @@ class HomographyRenderer:
                                    borderMode=cv2.BORDER_REPLICATE)
 
     def _background(self, camera: str, pose: Pose) -> np.ndarray:
-        """A fresh copy of the background's samples at ``pose``, for the objects to be drawn
-        into. The last warp of each camera is kept and reused while the camera does not
-        move (a static camera watching moving objects: its poses are bit-identical)."""
+        """The background's samples at ``pose``, for the objects to be drawn into (the
+        caller's to change). A camera that renders the same pose twice in a row (a static
+        camera watching moving objects: its poses are bit-identical) gets its second warp
+        kept and a copy of it from then on; a moving camera's warps are handed over."""
         key = (pose.r_wc.tobytes(), pose.t_wc.tobytes())
         kept = self._kept.get(camera)
         if kept is None or kept[0] != key:
+            self._kept[camera] = (key, None)
+            return self._warp(self.scenes[camera], self._fine[camera], pose)
+        if kept[1] is None:
             kept = (key, self._warp(self.scenes[camera], self._fine[camera], pose))
             self._kept[camera] = kept
         return kept[1].copy()
@@ -103,7 +108,8 @@ class HomographyRenderer:
         _overlay_kernel(img, fine.fx, fine.fy, fine.cx, fine.cy,
                         np.ascontiguousarray(pose.r_wc, np.float64),
                         np.ascontiguousarray(pose.t_wc, np.float64), r_wo, t_wo, packed.geom,
-                        packed.shapes, packed.alphas, packed.texels, boxes, ALPHA_CUTOFF)
+                        packed.shapes, packed.alphas, packed.texels, boxes, ALPHA_CUTOFF,
+                        packed.hulls, packed.hull_sizes)
         return img
 
     def close(self) -> None:
@@ -112,25 +118,27 @@ class HomographyRenderer:
 
 @numba.njit(cache=True, nogil=True)
 def _overlay_kernel(img, fx, fy, cx, cy, r_wc, c, r_wo, t_wo, geom, shapes, alphas, texels,
-                    boxes, cutoff):
+                    boxes, cutoff, hulls, hull_sizes):
     """In place: every sample of ``img`` (float32[H*s, W*s], the warped background) inside
     an object's box whose ray meets an object before the background gets that object's
-    texel (the reference renderer's :func:`nearest_hit` and bilinear lookup)."""
+    texel (the reference renderer's :func:`nearest_hit` and bilinear lookup). Per row, each
+    box is first narrowed to the samples that can meet the object's solid part
+    (:func:`row_boxes`), which changes which rays are tested, not what they hit."""
     fh, fw = img.shape
     origin = camera_in_objects(c, r_wo, t_wo)
     y0, y1 = fh, 0
     for j in range(boxes.shape[0]):
         if boxes[j, 1] > boxes[j, 0] and boxes[j, 3] > boxes[j, 2]:
             y0, y1 = min(y0, boxes[j, 2]), max(y1, boxes[j, 3])
+    row = np.zeros_like(boxes)
     for yf in range(y0, y1):
         ry = (yf - cy) / fy
-        for j in range(boxes.shape[0]):  # each box's samples of the row, once
-            if not boxes[j, 2] <= yf < boxes[j, 3]:
-                continue
-            for xf in range(boxes[j, 0], boxes[j, 1]):
+        row_boxes(yf, fx, fy, cx, cy, r_wc, origin, r_wo, boxes, hulls, hull_sizes, row)
+        for j in range(row.shape[0]):  # each narrowed box's samples of the row, once
+            for xf in range(row[j, 0], row[j, 1]):
                 seen = False
                 for k in range(j):
-                    if boxes[k, 2] <= yf < boxes[k, 3] and boxes[k, 0] <= xf < boxes[k, 1]:
+                    if row[k, 0] <= xf < row[k, 1]:
                         seen = True
                 if seen:
                     continue
@@ -138,9 +146,9 @@ def _overlay_kernel(img, fx, fy, cx, cy, r_wc, c, r_wo, t_wo, geom, shapes, alph
                 d0 = r_wc[0, 0] * rx + r_wc[0, 1] * ry + r_wc[0, 2]
                 d1 = r_wc[1, 0] * rx + r_wc[1, 1] * ry + r_wc[1, 2]
                 d2 = r_wc[2, 0] * rx + r_wc[2, 1] * ry + r_wc[2, 2]
-                _, hit, col, row = nearest_hit(d0, d1, d2, c[2], xf, yf, origin, r_wo, geom,
-                                               shapes, alphas, boxes, cutoff)
+                _, hit, col, rw = nearest_hit(d0, d1, d2, c[2], xf, yf, origin, r_wo, geom,
+                                              shapes, alphas, row, cutoff)
                 if hit > 0:
                     h = hit - 1
                     img[yf, xf] = bilinear_at(texels, shapes[h, 0], shapes[h, 1],
-                                              shapes[h, 2], col, row)
+                                              shapes[h, 2], col, rw)

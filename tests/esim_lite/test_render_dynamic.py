@@ -329,7 +329,7 @@ def test_homography_backend_reuses_the_background_only_while_the_camera_stays(ba
     other = Pose(camera_pose().r_wc, camera_pose().t_wc + np.array([0.05, 0.0, 0.0]))
     images = []
     for pose, objs in ((camera_pose(), poses), (camera_pose(), moved), (other, poses),
-                       (camera_pose(), poses)):
+                       (camera_pose(), poses), (camera_pose(), moved), (camera_pose(), poses)):
         img = kept.render("lr", pose, objs)
         fresh = make_renderer(scene, {"lr": cam}, config).render("lr", pose, objs)
         np.testing.assert_array_equal(img, fresh)
@@ -337,3 +337,4 @@ def test_homography_backend_reuses_the_background_only_while_the_camera_stays(ba
     assert not np.array_equal(images[0], images[1])
     assert not np.array_equal(images[0], images[2])
     np.testing.assert_array_equal(images[0], images[3])
+    np.testing.assert_array_equal(images[0], images[5])  # drawn over the kept warp's copy
