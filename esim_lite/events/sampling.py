@@ -253,6 +253,19 @@ def dynamic_bounds(log_img, flow, ids, band_px):
     return rate, np.sqrt(speed2), band
 
 
+@numba.njit(cache=True, nogil=True)
+def _weighted_change(before, after, weight, band):
+    """:meth:`AdaptiveSampler.change` in one compiled pass (float32 as numpy computes it):
+    the largest ``|after - before| * weight`` outside ``band``."""
+    h, w = before.shape
+    best = np.float32(0.0)
+    for y in range(h):
+        for x in range(w):
+            if not band[y, x]:
+                best = max(best, abs(after[y, x] - before[y, x]) * weight[y, x])
+    return best
+
+
 class AdaptiveSampler:
     """Proposes the next step for one camera and reviews the realised change."""
 
@@ -317,12 +330,14 @@ class AdaptiveSampler:
         threshold when the sampler has them): every pixel for a plane; with moving
         objects, every pixel outside the band around the occlusion boundaries and the image
         border seen at the proposal (the motion bound covers that band)."""
-        diff = np.abs(log_after - log_before)
-        if self._weight is not None:
-            diff = diff * self._weight
-        if self._band is not None:
-            diff = np.where(self._band, 0.0, diff)
-        return float(diff.max())
+        before = np.ascontiguousarray(log_before, np.float32)
+        after = np.ascontiguousarray(log_after, np.float32)
+        if self._weight is None and self._band is None:
+            return float(np.abs(after - before).max())
+        shape = before.shape
+        weight = self._weight if self._weight is not None else np.ones(shape, np.float32)
+        band = self._band if self._band is not None else np.zeros(shape, np.bool_)
+        return float(_weighted_change(before, after, weight, band))
 
     def review(self, change: float, dt_s: float) -> float | None:
         """Report a rendered step's :meth:`change`; None accepts it, else retry with the

@@ -428,16 +428,29 @@ def _truth_kernel(height, width, fx, fy, cx, cy, r_wc, c, v_c, w_c, r_wo, t_wo, 
     depth = np.empty((height, width), np.float32)
     ids = np.empty((height, width), np.uint8)
     origin = camera_in_objects(c, r_wo, t_wo)
-    d = np.empty(3)
     row = np.zeros_like(boxes)
     for y in range(height):
         row_boxes(y, fx, fy, cx, cy, r_wc, origin, r_wo, boxes, hulls, hull_sizes, row)
+        ux0, ux1 = width, 0  # the samples of the row that any object's narrowed box holds
+        for j in range(row.shape[0]):
+            if row[j, 1] > row[j, 0]:
+                ux0, ux1 = min(ux0, row[j, 0]), max(ux1, row[j, 1])
+        ry = (y - cy) / fy
+        e0, e1, e2 = r_wc[0, 1] * ry, r_wc[1, 1] * ry, r_wc[2, 1] * ry
         for x in range(width):
-            rx, ry = (x - cx) / fx, (y - cy) / fy
-            for a in range(3):
-                d[a] = r_wc[a, 0] * rx + r_wc[a, 1] * ry + r_wc[a, 2]
-            best, hit, _, _ = nearest_hit(d[0], d[1], d[2], c[2], x, y, origin, r_wo, geom,
-                                          shapes, alphas, row, cutoff)
+            rx = (x - cx) / fx
+            d0 = r_wc[0, 0] * rx + e0 + r_wc[0, 2]
+            d1 = r_wc[1, 0] * rx + e1 + r_wc[1, 2]
+            d2 = r_wc[2, 0] * rx + e2 + r_wc[2, 2]
+            if ux0 <= x < ux1:
+                best, hit, _, _ = nearest_hit(d0, d1, d2, c[2], x, y, origin, r_wo, geom,
+                                              shapes, alphas, row, cutoff)
+            else:  # the background alone (nearest_hit's first test)
+                best, hit = np.inf, -1
+                if d2 != 0:
+                    lam = -c[2] / d2
+                    if lam > 0 and np.isfinite(lam):
+                        best, hit = lam, 0
             if hit < 0:
                 ids[y, x] = miss
                 depth[y, x] = np.inf
@@ -445,7 +458,7 @@ def _truth_kernel(height, width, fx, fy, cx, cy, r_wc, c, v_c, w_c, r_wo, t_wo, 
             ids[y, x] = hit
             depth[y, x] = best
             # world point, its velocity, and its image velocity
-            rel0, rel1, rel2 = best * d[0], best * d[1], best * d[2]
+            rel0, rel1, rel2 = best * d0, best * d1, best * d2
             vx = vy = vz = 0.0
             if hit > 0:
                 j = hit - 1
