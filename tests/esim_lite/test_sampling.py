@@ -108,3 +108,28 @@ def test_with_mismatch_each_pixel_is_held_to_its_own_threshold():
     assert strict.review(strict.change(before, right), 1e-3) is not None
     assert per_pixel.review(per_pixel.change(before, left), 1e-3) is not None
     assert per_pixel.strict_budget == strict.budget == pytest.approx(0.1)
+
+
+@pytest.mark.parametrize("weighted", [False, True])
+@pytest.mark.parametrize("banded", [False, True])
+def test_change_equals_the_numpy_expression_bit_for_bit(weighted, banded):
+    """The compiled review (per-pixel threshold weights, the occlusion band left out)
+    against the numpy expression it replaced: the same float32 maximum."""
+    from esim_lite.events.sampling import AdaptiveSampler
+
+    rng = np.random.default_rng(3)
+    hw = (48, 64)
+    cam = Intrinsics.from_fov(hw[1], hw[0], 60.0)
+    pixel = rng.uniform(0.12, 0.8, hw) if weighted else None
+    sampler = AdaptiveSampler(SamplingConfig(contrast_fraction=1.0), cam, 0.12, pixel)
+    band = rng.random(hw) < 0.3
+    if banded:
+        sampler._band = band
+    before = rng.normal(0, 1, hw).astype(np.float32)
+    after = (before + rng.normal(0, 0.2, hw)).astype(np.float32)
+    diff = np.abs(after - before)
+    if weighted:
+        diff = diff * sampler._weight
+    if banded:
+        diff = np.where(band, 0.0, diff)
+    assert sampler.change(before, after) == float(diff.max())
