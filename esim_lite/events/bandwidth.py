@@ -105,8 +105,13 @@ class PhotoreceptorLowPass:
         the pixels that rise towards their input and ``fall_budget`` those that fall (a
         relaxation is monotonic, so it can only cross the levels of its own direction)."""
         shape = self.state.shape
-        rise = np.broadcast_to(np.asarray(budget), shape)
-        fall = rise if fall_budget is None else np.broadcast_to(np.asarray(fall_budget), shape)
+
+        def per_pixel(b: float | np.ndarray) -> np.ndarray:
+            return b if isinstance(b, np.ndarray) and b.shape == shape else \
+                np.broadcast_to(np.asarray(b), shape)
+
+        rise = per_pixel(budget)
+        fall = rise if fall_budget is None else per_pixel(fall_budget)
         return _max_step(self.state, self.input, self._tau, rise, fall)
 
 

@@ -84,7 +84,8 @@ class NoiseModel:
         """float32[H, W] drift to add to the log image at time ``t_s`` (None if no leak)."""
         if self.leak_rate is None:
             return None
-        return (self.leak_rate * c_pos * t_s).astype(np.float32)
+        c = np.broadcast_to(np.asarray(c_pos, np.float64), self.hw)
+        return _leak_offset(self.leak_rate, c, float(t_s))
 
     def events(self, t0_ns: int, t1_ns: int, intensity: np.ndarray | None = None
                ) -> tuple[np.ndarray, ...]:
@@ -124,6 +125,17 @@ class NoiseModel:
         t = t0_ns + 1 + self.rng.integers(0, max(t1_ns - t0_ns, 1), len(flat))
         return ((flat % w).astype(np.int16), (flat // w).astype(np.int16), t.astype(np.int64),
                 np.concatenate(pol).astype(np.int8))
+
+
+@numba.njit(cache=True, nogil=True)
+def _leak_offset(rate, c_pos, t_s):
+    """float32 ``rate * c_pos * t_s`` per pixel, in numpy's order, in one pass."""
+    h, w = rate.shape
+    out = np.empty((h, w), np.float32)
+    for y in range(h):
+        for x in range(w):
+            out[y, x] = np.float32(rate[y, x] * c_pos[y, x] * t_s)
+    return out
 
 
 @numba.njit(cache=True)

@@ -75,8 +75,8 @@ class PlanarScene:
         """
         r_cw, t_cw = pose.r_cw, pose.t_cw
         image_from_plane = intrinsics.matrix @ np.column_stack([r_cw[:, 0], r_cw[:, 1], t_cw])
-        h = self.texture_from_plane() @ np.linalg.inv(image_from_plane)
-        return h / h[2, 2]
+        h = self.texture_from_plane() @ _adjugate(image_from_plane)
+        return h / h[2, 2]  # the adjugate is the inverse times the determinant: it cancels
 
     def covers_view(self, intrinsics: Intrinsics, pose: Pose, margin_m: float = 0.0) -> bool:
         """True if every pixel of the camera sees the textured rectangle, on its lit side.
@@ -91,3 +91,12 @@ class PlanarScene:
             return False
         hw, hh = self.width_m / 2 - margin_m, self.height_m / 2 - margin_m
         return bool(np.all(np.abs(points[:, 0]) <= hw) and np.all(np.abs(points[:, 1]) <= hh))
+
+
+def _adjugate(m: np.ndarray) -> np.ndarray:
+    """float64[3, 3] adjugate of ``m`` (``det(m) inv(m)``), in closed form: a render step
+    needs one per camera, and ``np.linalg.inv``'s call costs more than the arithmetic."""
+    (a, b, c), (d, e, f), (g, h, i) = m.tolist()
+    return np.array([[e * i - f * h, c * h - b * i, b * f - c * e],
+                     [f * g - d * i, a * i - c * g, c * d - a * f],
+                     [d * h - e * g, b * g - a * h, a * e - b * d]])
