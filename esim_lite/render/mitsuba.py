@@ -45,6 +45,7 @@ Y up, Z forward with pixel centres at ``i + 0.5``; a rectangle's bitmap row 0 li
 
 from __future__ import annotations
 
+import gc
 import logging
 import os
 import subprocess
@@ -378,6 +379,16 @@ class _RayCast:
 
         # float64 on the host: the camera in each object's frame, one rigid map per object
         seen = [opaque(relative_pose(pose, p)) for p in objects]
-        values = self._frozen(scene, opaque(pose), self._textures, seen)
+        # No cyclic garbage collection inside the frozen call: a collection that freed
+        # another renderer's drjit objects while this one was being recorded aborted the
+        # process once (the test suite, 2-core AMD VM, 2026-12-07); collections wait until
+        # the call returns (process-global; datagen renders one sequence per process).
+        collecting = gc.isenabled()
+        gc.disable()
+        try:
+            values = self._frozen(scene, opaque(pose), self._textures, seen)
+        finally:
+            if collecting:
+                gc.enable()
         return np.array(values, dtype=np.float32).reshape(self.camera.height,
                                                           self.camera.width)
