@@ -382,7 +382,8 @@ class _RayCast:
         # No cyclic garbage collection inside the frozen call: a collection that freed
         # another renderer's drjit objects while this one was being recorded aborted the
         # process once (the test suite, 2-core AMD VM, 2026-12-07); collections wait until
-        # the call returns (process-global; datagen renders one sequence per process).
+        # the call returns. gc.disable is process-global: a render on another Python
+        # thread ending first re-enables collection early (losing only this guard).
         collecting = gc.isenabled()
         gc.disable()
         try:
